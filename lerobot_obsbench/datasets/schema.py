@@ -1,0 +1,146 @@
+"""The OBSBench dataset schema (DESIGN §3) and a validator for LeRobot feature dictionaries.
+
+One LeRobotDataset stores raw sensor frames; every observation space is derived from them:
+
+| key                              | dtype, shape           | meaning                                        |
+|----------------------------------|------------------------|------------------------------------------------|
+| observation.images.<cam>         | video/image (H, W, 3)  | colour                                         |
+| observation.depth.<cam>          | uint16 (H, W, 1)       | depth along the optical axis, mm, 0 = invalid  |
+| observation.intrinsics.<cam>     | float32 (3, 3)         | OpenCV K                                       |
+| observation.cam2world.<cam>      | float32 (4, 4)         | OpenCV camera -> world                         |
+| observation.state                | float32 (D,)           | joints + gripper; last 7 = EE xyz + quat wxyz  |
+| observation.environment_state    | float32 (G,)           | task goal (optional)                           |
+| action                           | float32 (A,)           | e.g. pd_ee_delta_pose                          |
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+OBS_SPACES = ("rgb", "depth", "rgbd", "pointmap", "pointcloud")
+
+IMAGE_PREFIX = "observation.images."
+DEPTH_PREFIX = "observation.depth."
+INTRINSICS_PREFIX = "observation.intrinsics."
+CAM2WORLD_PREFIX = "observation.cam2world."
+STATE_KEY = "observation.state"
+ENV_STATE_KEY = "observation.environment_state"
+ACTION_KEY = "action"
+SENSOR_PREFIXES = (IMAGE_PREFIX, DEPTH_PREFIX, INTRINSICS_PREFIX, CAM2WORLD_PREFIX)
+EE_POSE_SIZE = 7  # xyz + quaternion (w, x, y, z)
+
+# Which per-camera sensors each observation space reads.
+SPACE_SENSORS: dict[str, tuple[str, ...]] = {
+    "rgb": (IMAGE_PREFIX,),
+    "depth": (DEPTH_PREFIX,),
+    "rgbd": (IMAGE_PREFIX, DEPTH_PREFIX),
+    "pointmap": (IMAGE_PREFIX, DEPTH_PREFIX, INTRINSICS_PREFIX, CAM2WORLD_PREFIX),
+    "pointcloud": (IMAGE_PREFIX, DEPTH_PREFIX, INTRINSICS_PREFIX, CAM2WORLD_PREFIX),
+}
+
+
+class SchemaError(ValueError):
+    """A dataset or batch does not provide what the chosen observation space needs."""
+
+
+def image_key(cam: str) -> str:
+    return IMAGE_PREFIX + cam
+
+
+def depth_key(cam: str) -> str:
+    return DEPTH_PREFIX + cam
+
+
+def intrinsics_key(cam: str) -> str:
+    return INTRINSICS_PREFIX + cam
+
+
+def cam2world_key(cam: str) -> str:
+    return CAM2WORLD_PREFIX + cam
+
+
+def sensor_keys(obs_space: str, cameras: list[str] | tuple[str, ...]) -> list[str]:
+    """Dataset keys an observation space reads, camera by camera."""
+    return [prefix + cam for cam in cameras for prefix in SPACE_SENSORS[check_obs_space(obs_space)]]
+
+
+def is_sensor_key(key: str) -> bool:
+    return key.startswith(SENSOR_PREFIXES)
+
+
+def check_obs_space(obs_space: str) -> str:
+    if obs_space not in OBS_SPACES:
+        raise SchemaError(f"Unknown obs_space {obs_space!r}; choose one of {', '.join(OBS_SPACES)}.")
+    return obs_space
+
+
+def cameras_in(features: Mapping[str, object]) -> list[str]:
+    """Camera names found in a feature dictionary (any sensor prefix), in first-seen order."""
+    cams: list[str] = []
+    for key in features:
+        for prefix in SENSOR_PREFIXES:
+            if key.startswith(prefix) and key[len(prefix):] not in cams:
+                cams.append(key[len(prefix):])
+    return cams
+
+
+def _shape(ft: object) -> tuple[int, ...]:
+    shape = ft["shape"] if isinstance(ft, Mapping) else ft.shape
+    return tuple(int(s) for s in shape)
+
+
+def _dtype(ft: object) -> str | None:
+    return ft.get("dtype") if isinstance(ft, Mapping) else None
+
+
+def _expected(prefix: str, shape: tuple[int, ...]) -> tuple[bool, str]:
+    if prefix == IMAGE_PREFIX:
+        ok = len(shape) == 3 and 3 in (shape[0], shape[-1])
+        return ok, "(H, W, 3) colour image or video"
+    if prefix == DEPTH_PREFIX:
+        ok = len(shape) == 3 and shape[-1] == 1
+        return ok, "(H, W, 1) uint16 depth in millimetres (channel-last, 0 = invalid)"
+    if prefix == INTRINSICS_PREFIX:
+        return shape == (3, 3), "(3, 3) float32 OpenCV intrinsics K"
+    return shape == (4, 4), "(4, 4) float32 OpenCV camera -> world transform"
+
+
+def validate_features(features: Mapping[str, object], obs_space: str,
+                      cameras: list[str] | tuple[str, ...] | None = None) -> list[str]:
+    """Check that `features` (a LeRobot dataset `features` dict or policy features) serve `obs_space`.
+
+    Returns the cameras used (all cameras that have the needed keys when `cameras` is None). Raises
+    `SchemaError` naming every missing or mis-shaped key and how to fix it.
+    """
+    check_obs_space(obs_space)
+    needed = SPACE_SENSORS[obs_space]
+    if cameras is None or len(cameras) == 0:
+        cameras = [c for c in cameras_in(features) if all(p + c in features for p in needed)]
+        if not cameras:
+            present = sorted(k for k in features if k.startswith("observation."))
+            raise SchemaError(
+                f"obs_space={obs_space!r} needs, for at least one camera <cam>, the keys "
+                f"{', '.join(p + '<cam>' for p in needed)}; the dataset has {present}. Record depth, intrinsics "
+                "and cam2world with the frames (see the schema in lerobot_obsbench/datasets/schema.py), or pick "
+                "an observation space the dataset supports."
+            )
+    problems = []
+    for cam in cameras:
+        for prefix in needed:
+            key = prefix + cam
+            if key not in features:
+                problems.append(f"missing key {key!r}")
+                continue
+            ok, what = _expected(prefix, _shape(features[key]))
+            if not ok:
+                problems.append(f"{key!r} has shape {_shape(features[key])}, expected {what}")
+            dtype = _dtype(features[key])
+            if prefix == DEPTH_PREFIX and dtype is not None and dtype not in ("uint16", "uint32", "int32", "int64"):
+                problems.append(f"{key!r} has dtype {dtype}, expected uint16 millimetres")
+    if problems:
+        raise SchemaError(
+            f"Dataset does not fit obs_space={obs_space!r} with cameras {list(cameras)}: " + "; ".join(problems)
+            + ". Fix the recording (schema: lerobot_obsbench/datasets/schema.py) or choose --policy.obs_space / "
+            "--policy.cameras accordingly."
+        )
+    return list(cameras)

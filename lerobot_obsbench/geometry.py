@@ -1,0 +1,198 @@
+"""Point-cloud geometry: unprojection, frames, cropping, voxel sampling, FPS and kNN.
+
+Every function is pure, batched over a leading dimension B, and runs on whatever device its inputs live on.
+Variable-size clouds are padded to a common length N with a boolean `mask` (B, N) marking real points.
+Conventions (DESIGN §3): depth is metres along the optical axis, K is OpenCV's (pixel (u, v) = (column, row),
+integer coordinates at pixel centres), `cam2world` maps OpenCV camera coordinates (x right, y down,
+z forward) to the world frame, quaternions are (w, x, y, z).
+"""
+
+from __future__ import annotations
+
+import fpsample
+import numpy as np
+import torch
+from torch import Tensor
+
+FRAMES = ("world", "camera", "ee")
+
+
+def unproject_depth(depth: Tensor, K: Tensor) -> Tensor:
+    """Camera-frame points (B, H, W, 3) of a metric depth map (B, H, W) with intrinsics K (B, 3, 3)."""
+    _, h, w = depth.shape
+    v, u = torch.meshgrid(
+        torch.arange(h, device=depth.device, dtype=depth.dtype),
+        torch.arange(w, device=depth.device, dtype=depth.dtype),
+        indexing="ij",
+    )
+    fx, fy = K[:, 0, 0, None, None], K[:, 1, 1, None, None]
+    cx, cy = K[:, 0, 2, None, None], K[:, 1, 2, None, None]
+    x = (u - cx) / fx * depth
+    y = (v - cy) / fy * depth
+    return torch.stack([x, y, depth], dim=-1)
+
+
+def transform_points(points: Tensor, transform: Tensor) -> Tensor:
+    """Apply rigid transforms (B, 4, 4) to points (B, ..., 3)."""
+    b = points.shape[0]
+    flat = points.reshape(b, -1, 3)
+    out = flat @ transform[:, :3, :3].transpose(1, 2) + transform[:, None, :3, 3]
+    return out.reshape(points.shape)
+
+
+def invert_transform(transform: Tensor) -> Tensor:
+    """Inverse of rigid transforms (B, 4, 4) without a general matrix inverse."""
+    rot_t = transform[:, :3, :3].transpose(1, 2)
+    out = torch.zeros_like(transform)
+    out[:, :3, :3] = rot_t
+    out[:, :3, 3] = -(rot_t @ transform[:, :3, 3:4]).squeeze(-1)
+    out[:, 3, 3] = 1
+    return out
+
+
+def quaternion_to_matrix(quat: Tensor) -> Tensor:
+    """Rotation matrices (B, 3, 3) of quaternions (B, 4) in (w, x, y, z) order (normalised first)."""
+    w, x, y, z = torch.unbind(quat / quat.norm(dim=-1, keepdim=True), dim=-1)
+    return torch.stack(
+        [
+            1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
+            2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
+            2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y),
+        ],
+        dim=-1,
+    ).reshape(quat.shape[:-1] + (3, 3))
+
+
+def pose_to_matrix(position: Tensor, quat: Tensor) -> Tensor:
+    """4x4 transforms (B, 4, 4) from positions (B, 3) and (w, x, y, z) quaternions (B, 4)."""
+    out = torch.zeros(position.shape[0], 4, 4, dtype=position.dtype, device=position.device)
+    out[:, :3, :3] = quaternion_to_matrix(quat)
+    out[:, :3, 3] = position
+    out[:, 3, 3] = 1
+    return out
+
+
+def crop_mask(points: Tensor, mask: Tensor, box: Tensor | tuple | list) -> Tensor:
+    """Mask of points (B, N, 3) inside an axis-aligned box (xmin, xmax, ymin, ymax, zmin, zmax)."""
+    box = torch.as_tensor(box, dtype=points.dtype, device=points.device).reshape(3, 2)
+    inside = ((points >= box[:, 0]) & (points <= box[:, 1])).all(dim=-1)
+    return mask & inside
+
+
+def pack(mask: Tensor, *values: Tensor) -> tuple[Tensor, ...]:
+    """Move the masked entries of each (B, N, ...) tensor to the front, trimmed to the largest count.
+
+    Returns the packed tensors followed by the new mask (B, M); the relative order of kept entries is preserved.
+    """
+    counts = mask.sum(dim=1)
+    m = max(int(counts.max()) if mask.numel() else 0, 1)
+    order = torch.sort((~mask).to(torch.uint8), dim=1, stable=True).indices[:, :m]
+    packed = [gather(v, order) for v in values]
+    new_mask = torch.arange(m, device=mask.device)[None] < counts[:, None]
+    return (*packed, new_mask)
+
+
+def gather(values: Tensor, index: Tensor) -> Tensor:
+    """values (B, N, ...) indexed by index (B, ...) along dim 1 -> (B, ..., ...)."""
+    b = values.shape[0]
+    batch = torch.arange(b, device=values.device).view(b, *([1] * (index.dim() - 1)))
+    return values[batch, index]
+
+
+def voxel_sample(points: Tensor, mask: Tensor, voxel_size: float, random: bool,
+                 generator: torch.Generator | None = None) -> Tensor:
+    """Keep exactly one point per occupied voxel of edge `voxel_size` (per batch element).
+
+    Returns a keep-mask (B, N). `random=True` (training) picks a uniformly random point of each voxel;
+    `random=False` (evaluation) deterministically keeps the lowest-index point.
+    """
+    b, n, _ = points.shape
+    cells = torch.floor(points / voxel_size).to(torch.int64)
+    cells = cells - cells.masked_fill(~mask[..., None], torch.iinfo(torch.int64).max).amin(dim=1, keepdim=True)
+    cells = cells.clamp(min=0)
+    span = cells.masked_fill(~mask[..., None], 0).amax(dim=(0, 1)) + 1
+    key = (cells[..., 0] * span[1] + cells[..., 1]) * span[2] + cells[..., 2]
+    key = key + torch.arange(b, device=points.device)[:, None] * (span[0] * span[1] * span[2])
+    key = key.masked_fill(~mask, -1).reshape(-1)
+    _, voxel_id = torch.unique(key, return_inverse=True)
+    if random:
+        score = torch.randperm(b * n, device=points.device, generator=generator)
+    else:
+        score = torch.arange(b * n, device=points.device)
+    best = torch.full((int(voxel_id.max()) + 1,), b * n, dtype=score.dtype, device=points.device)
+    best = best.scatter_reduce(0, voxel_id, score, reduce="amin")
+    keep = (best[voxel_id] == score).reshape(b, n)
+    return keep & mask
+
+
+def _fps_torch(xyz: Tensor, mask: Tensor, k: int) -> Tensor:
+    """Batched farthest point sampling; starts from the first valid point of each cloud."""
+    b, n, _ = xyz.shape
+    idx = torch.zeros(b, k, dtype=torch.long, device=xyz.device)
+    dist = torch.full((b, n), float("inf"), device=xyz.device, dtype=xyz.dtype).masked_fill(~mask, -1.0)
+    current = mask.to(torch.uint8).argmax(dim=1)
+    rows = torch.arange(b, device=xyz.device)
+    for i in range(k):
+        idx[:, i] = current
+        d = ((xyz - xyz[rows, current][:, None]) ** 2).sum(-1)
+        dist = torch.minimum(dist, d.masked_fill(~mask, -1.0))
+        current = dist.argmax(dim=1)
+    return idx
+
+
+def _fps_fpsample(xyz: Tensor, mask: Tensor, k: int) -> Tensor:
+    """Per-cloud FPS with `fpsample`'s exact C++ kernel (≈10x faster than a loop of tensor ops on CPU).
+
+    Its bucket/KD-tree variants are faster still but do not honour the start index, so CPU and GPU would pick
+    different seeds for the same cloud.
+    """
+    xyz_np = xyz.detach().cpu().numpy()
+    mask_np = mask.cpu().numpy()
+    out = np.zeros((xyz.shape[0], k), dtype=np.int64)
+    for i in range(xyz.shape[0]):
+        valid = np.flatnonzero(mask_np[i])
+        n_valid = len(valid)
+        if n_valid == 0:
+            continue
+        picked = fpsample.fps_sampling(xyz_np[i, valid].astype(np.float32), min(k, n_valid), start_idx=0)
+        out[i, : len(picked)] = valid[picked.astype(np.int64)]
+    return torch.from_numpy(out).to(xyz.device)
+
+
+def farthest_point_sample(xyz: Tensor, mask: Tensor, k: int) -> tuple[Tensor, Tensor]:
+    """Indices (B, k) of k farthest-point seeds of each padded cloud, and their validity mask (B, k).
+
+    A cloud with n ≤ k valid points returns all of them (in index order); the remaining k - n slots repeat
+    its first point and are marked invalid (the reference CUDA FPS kernel repeats points the same way).
+    """
+    counts = mask.sum(dim=1)
+    seed_mask = torch.arange(k, device=xyz.device)[None] < counts[:, None]
+    if bool((counts <= k).all()):
+        idx = pack(mask, torch.arange(xyz.shape[1], device=xyz.device).expand(xyz.shape[0], -1))[0]
+        idx = torch.nn.functional.pad(idx, (0, max(0, k - idx.shape[1])))[:, :k]
+    elif xyz.device.type == "cpu":
+        idx = _fps_fpsample(xyz, mask, k)
+    else:
+        idx = _fps_torch(xyz, mask, k)
+    first = idx[:, :1].expand(-1, k)
+    return torch.where(seed_mask, idx, first), seed_mask
+
+
+def knn(query: Tensor, points: Tensor, mask: Tensor, k: int, chunk: int = 1024) -> Tensor:
+    """Indices (B, S, k) of the k nearest valid points (B, N, 3) of each query point (B, S, 3).
+
+    Where a cloud has fewer than k valid points the missing neighbours repeat the nearest one, so that a
+    max-pool over neighbours is unaffected. Queries are processed in chunks to bound memory.
+    """
+    k_eff = min(k, points.shape[1])
+    out = []
+    for start in range(0, query.shape[1], chunk):
+        d = torch.cdist(query[:, start : start + chunk], points)
+        d = d.masked_fill(~mask[:, None, :], float("inf"))
+        dist, idx = torch.topk(d, k_eff, dim=-1, largest=False)
+        idx = torch.where(torch.isinf(dist), idx[..., :1], idx)
+        out.append(idx)
+    idx = torch.cat(out, dim=1)
+    if k_eff < k:
+        idx = torch.cat([idx, idx[..., :1].expand(-1, -1, k - k_eff)], dim=-1)
+    return idx

@@ -1,0 +1,48 @@
+"""obs_act: LeRobot's ACT with the observation space as one config field."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from lerobot.configs.policies import PreTrainedConfig
+from lerobot.policies.act.configuration_act import ACTConfig
+
+from lerobot_obsbench.policies.common import ObservationConfig
+
+
+@PreTrainedConfig.register_subclass("obs_act")
+@dataclass
+class ObsACTConfig(ObservationConfig, ACTConfig):
+    """ACT (LeRobot 0.4.4) whose observation encoder is chosen by `obs_space` / `encoder`.
+
+    Defaults are the paper's (Appendix C, DESIGN §6); see `lerobot_obsbench.presets` for the small CPU preset.
+    """
+
+    # Paper: feed-forward width 32 (LeRobot's default is 3200).
+    dim_feedforward: int = 32
+    # The original ACT builds 7 decoder layers but reads only the first one's output; LeRobot reproduces that
+    # behaviour with a single decoder layer.
+    n_decoder_layers: int = 1
+    # Paper: temporal ensembling with k = 0.01, which queries the policy every step.
+    temporal_ensemble_coeff: float | None = 0.01
+    n_action_steps: int = 1
+    # Never download torchvision weights implicitly (ACT's default would); see `pretrained`.
+    pretrained_backbone_weights: str | None = None
+    # Paper learning rates {1e-5, 5e-5, 1e-4}; the encoder trains at the same rate.
+    optimizer_lr: float = 1e-4
+    optimizer_lr_backbone: float = 1e-4
+    # Local runs must not require --policy.repo_id.
+    push_to_hub: bool = False
+
+    def __post_init__(self):
+        super().__post_init__()
+        self.validate_observation_fields()
+
+    def validate_features(self) -> None:
+        self.resolve_observation_features()
+
+    def get_optimizer_preset(self):
+        return self.onecycle_optimizer()
+
+    def get_scheduler_preset(self):
+        return self.onecycle_scheduler()

@@ -1,0 +1,84 @@
+"""obs_diffusion policy: LeRobot's conditional UNet, noise scheduler and action queues with the plugin's
+observation encoder as the conditioning."""
+
+from __future__ import annotations
+
+from collections import deque
+
+import torch
+from lerobot.policies.diffusion.modeling_diffusion import (
+    DiffusionConditionalUnet1d,
+    DiffusionModel,
+    DiffusionPolicy,
+    _make_noise_scheduler,
+)
+from lerobot.policies.pretrained import PreTrainedPolicy
+from lerobot.utils.constants import OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
+from torch import Tensor, nn
+
+from lerobot_obsbench.policies.common import ObservationEncoder
+from lerobot_obsbench.policies.obs_diffusion.configuration_obs_diffusion import ObsDiffusionConfig
+
+
+class ObsDiffusionModel(DiffusionModel):
+    """DiffusionModel conditioned on [state ‖ observation feature ‖ env state] for each observation step."""
+
+    def __init__(self, config: ObsDiffusionConfig, dataset_stats: dict | None = None):
+        # DiffusionModel.__init__ would size the UNet from image features the plugin does not use; build the
+        # same parts here with the observation encoder's feature size instead.
+        nn.Module.__init__(self)
+        self.config = config
+        self.observation = ObservationEncoder(config, output="global", dim=config.diffusion_step_embed_dim,
+                                              dataset_stats=dataset_stats)
+        global_cond_dim = config.robot_state_feature.shape[0] + self.observation.out_dim
+        if config.env_state_feature:
+            global_cond_dim += config.env_state_feature.shape[0]
+        self.unet = DiffusionConditionalUnet1d(config, global_cond_dim=global_cond_dim * config.n_obs_steps)
+        self.noise_scheduler = _make_noise_scheduler(
+            config.noise_scheduler_type,
+            num_train_timesteps=config.num_train_timesteps,
+            beta_start=config.beta_start,
+            beta_end=config.beta_end,
+            beta_schedule=config.beta_schedule,
+            clip_sample=config.clip_sample,
+            clip_sample_range=config.clip_sample_range,
+            prediction_type=config.prediction_type,
+        )
+        self.num_inference_steps = config.num_inference_steps or config.num_train_timesteps
+
+    def _prepare_global_conditioning(self, batch: dict[str, Tensor]) -> Tensor:
+        batch_size, n_obs_steps = batch[OBS_STATE].shape[:2]
+        # Every observation step is encoded as its own frame.
+        frames = {k: batch[k].flatten(0, 1) for k in self.observation.input_keys}
+        obs_feature = self.observation(frames).reshape(batch_size, n_obs_steps, -1)
+        feats = [batch[OBS_STATE], obs_feature]
+        if self.config.env_state_feature:
+            feats.append(batch[OBS_ENV_STATE])
+        return torch.cat(feats, dim=-1).flatten(start_dim=1)
+
+    def compute_loss(self, batch: dict[str, Tensor]) -> Tensor:
+        # Stock compute_loss only asserts that some visual or env-state input is present; the sensor tensors
+        # travel under their own keys, so point that marker at the first of them.
+        return super().compute_loss({OBS_IMAGES: batch[self.observation.input_keys[0]], **batch})
+
+
+class ObsDiffusionPolicy(DiffusionPolicy):
+    """Diffusion policy (queues, inference loop from LeRobot) over any observation space."""
+
+    config_class = ObsDiffusionConfig
+    name = "obs_diffusion"
+
+    def __init__(self, config: ObsDiffusionConfig, **kwargs):
+        PreTrainedPolicy.__init__(self, config)
+        config.validate_features()
+        self.config = config
+        self._queues = None
+        self.diffusion = ObsDiffusionModel(config, dataset_stats=kwargs.get("dataset_stats"))
+        self.reset()
+
+    def reset(self):
+        super().reset()
+        # Stock reset() only queues state, images, env state and action: add the sensor keys, or
+        # select_action would drop them.
+        for key in self.diffusion.observation.input_keys:
+            self._queues[key] = deque(maxlen=self.config.n_obs_steps)

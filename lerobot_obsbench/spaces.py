@@ -1,0 +1,216 @@
+"""ObservationAdapter: stored sensor tensors -> the inputs of one observation space (DESIGN §2, §4).
+
+    rgb        -> images (B, n_cam, 3, H, W)   ImageNet-normalised colour
+    depth      -> images (B, n_cam, 1, H, W)   metric depth clipped to `depth_clip` and scaled to [-1, 1]
+    rgbd       -> images (B, n_cam, 4, H, W)   rgb ‖ depth, channel-stacked
+    pointmap   -> images (B, n_cam, 6, H, W)   rgb ‖ xyz (metres, chosen frame; 0 where depth is invalid)
+    pointcloud -> PointCloud(xyz (B, N, 3), features (B, N, C), mask (B, N)): all cameras fused, cropped to the
+                  workspace box (world frame, which also drops the ground), moved to the chosen frame, one point
+                  per voxel; features are rgb in [-1, 1] and/or xyz in metres.
+
+The same module runs on dataset batches in training and on env observations in evaluation, so an observation
+space is never baked into stored data.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor, nn
+
+from lerobot_obsbench import geometry
+from lerobot_obsbench.datasets.schema import (
+    SchemaError,
+    cam2world_key,
+    check_obs_space,
+    depth_key,
+    image_key,
+    intrinsics_key,
+)
+
+POINT_FEATURES = {"rgb+xyz": 6, "xyz": 3, "rgb": 3}
+IMAGE_CHANNELS = {"rgb": 3, "depth": 1, "rgbd": 4, "pointmap": 6}
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+DEFAULT_WORKSPACE = (-1.0, 1.0, -1.0, 1.0, 0.005, 1.0)
+
+
+@dataclass
+class PointCloud:
+    xyz: Tensor  # (B, N, 3) metres in the chosen frame
+    features: Tensor  # (B, N, C)
+    mask: Tensor  # (B, N) True for real points
+
+
+def check_point_features(point_features: str) -> str:
+    if point_features not in POINT_FEATURES:
+        raise ValueError(f"Unknown point_features {point_features!r}; choose one of {', '.join(POINT_FEATURES)}.")
+    return point_features
+
+
+def check_frame(frame: str) -> str:
+    if frame not in geometry.FRAMES:
+        raise ValueError(f"Unknown frame {frame!r}; choose one of {', '.join(geometry.FRAMES)}.")
+    return frame
+
+
+def input_channels(obs_space: str, point_features: str = "rgb+xyz") -> int:
+    """Channels the encoder receives: image channels, or per-point feature size for point clouds."""
+    if check_obs_space(obs_space) == "pointcloud":
+        return POINT_FEATURES[check_point_features(point_features)]
+    return IMAGE_CHANNELS[obs_space]
+
+
+class ObservationAdapter(nn.Module):
+    def __init__(
+        self,
+        obs_space: str,
+        cameras: list[str],
+        frame: str = "world",
+        point_features: str = "rgb+xyz",
+        workspace: tuple[float, ...] = DEFAULT_WORKSPACE,
+        voxel_size: float = 0.005,
+        depth_clip: tuple[float, float] = (0.0, 2.0),
+    ):
+        super().__init__()
+        if not cameras:
+            raise SchemaError("ObservationAdapter needs at least one camera name.")
+        if len(workspace) != 6 or any(workspace[2 * i] >= workspace[2 * i + 1] for i in range(3)):
+            raise ValueError(f"workspace must be (xmin, xmax, ymin, ymax, zmin, zmax) with min < max; got {workspace}")
+        if voxel_size <= 0:
+            raise ValueError(f"voxel_size must be > 0 metres; got {voxel_size}")
+        if not depth_clip[0] < depth_clip[1]:
+            raise ValueError(f"depth_clip must be (near, far) with near < far; got {depth_clip}")
+        self.obs_space = check_obs_space(obs_space)
+        self.cameras = list(cameras)
+        self.frame = check_frame(frame)
+        self.point_features = check_point_features(point_features)
+        self.workspace = tuple(float(w) for w in workspace)
+        self.voxel_size = float(voxel_size)
+        self.depth_clip = (float(depth_clip[0]), float(depth_clip[1]))
+        self.register_buffer("rgb_mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
+        self.register_buffer("rgb_std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
+
+    @property
+    def needs_ee_pose(self) -> bool:
+        return self.frame == "ee" and self.obs_space in ("pointcloud", "pointmap")
+
+    # ---- checked accessors: a clear error names the key and the fix ------------------------------------
+
+    def _rgb(self, batch: dict, cam: str) -> Tensor:
+        key = image_key(cam)
+        x = _require(batch, key)
+        if x.dim() != 4 or x.shape[1] != 3 or not x.is_floating_point():
+            raise SchemaError(f"{key}: expected a float (B, 3, H, W) image in [0, 1], got {x.dtype} {tuple(x.shape)}.")
+        return x
+
+    def _depth_m(self, batch: dict, cam: str) -> Tensor:
+        key = depth_key(cam)
+        d = _require(batch, key)
+        if d.is_floating_point() or d.dtype == torch.bool:
+            raise SchemaError(
+                f"{key}: depth must be integer millimetres (uint16, 0 = invalid), got {d.dtype}. "
+                "Store it as (depth_m * 1000).round().astype(uint16)."
+            )
+        if d.dim() != 4 or d.shape[-1] != 1:
+            raise SchemaError(f"{key}: expected shape (B, H, W, 1) (channel-last, one channel), got {tuple(d.shape)}.")
+        return d[..., 0].float() / 1000.0
+
+    def _camera(self, batch: dict, cam: str) -> tuple[Tensor, Tensor]:
+        k_key, t_key = intrinsics_key(cam), cam2world_key(cam)
+        K, cam2world = _require(batch, k_key).float(), _require(batch, t_key).float()
+        if K.shape[-2:] != (3, 3):
+            raise SchemaError(f"{k_key}: expected (B, 3, 3) OpenCV intrinsics, got {tuple(K.shape)}.")
+        if cam2world.shape[-2:] != (4, 4):
+            raise SchemaError(f"{t_key}: expected (B, 4, 4) camera->world transforms, got {tuple(cam2world.shape)}.")
+        if not bool(torch.isfinite(K).all()) or not bool((K[:, 0, 0] > 0).all() and (K[:, 1, 1] > 0).all()):
+            raise SchemaError(f"{k_key}: intrinsics must be finite with fx, fy > 0; fix the recorded camera K.")
+        if not bool(torch.isfinite(cam2world).all()):
+            raise SchemaError(f"{t_key}: camera pose contains non-finite values; fix the recorded extrinsics.")
+        return K, cam2world
+
+    # ---- spaces ------------------------------------------------------------------------------------------
+
+    def _scaled_depth(self, depth_m: Tensor) -> Tensor:
+        near, far = self.depth_clip
+        return (depth_m.clamp(near, far) - near) / (far - near) * 2 - 1
+
+    def _frame_transform(self, first_cam: str, batch: dict, ee_pose: Tensor | None) -> Tensor | None:
+        """world -> chosen frame transform (B, 4, 4), or None for the world frame."""
+        if self.frame == "world":
+            return None
+        if self.frame == "camera":
+            return geometry.invert_transform(self._camera(batch, first_cam)[1])
+        if ee_pose is None:
+            raise SchemaError("frame='ee' needs the end-effector pose (the last 7 values of observation.state).")
+        return geometry.invert_transform(ee_pose)
+
+    def _world_points(self, batch: dict, cam: str) -> tuple[Tensor, Tensor]:
+        depth_m = self._depth_m(batch, cam)
+        K, cam2world = self._camera(batch, cam)
+        points = geometry.transform_points(geometry.unproject_depth(depth_m, K), cam2world)
+        return points, depth_m > 0
+
+    def forward(self, batch: dict, ee_pose: Tensor | None = None) -> Tensor | PointCloud:
+        if self.obs_space == "pointcloud":
+            return self._pointcloud(batch, ee_pose)
+        to_frame = self._frame_transform(self.cameras[0], batch, ee_pose) if self.obs_space == "pointmap" else None
+        per_camera = []
+        for cam in self.cameras:
+            channels = []
+            if self.obs_space in ("rgb", "rgbd", "pointmap"):
+                channels.append((self._rgb(batch, cam) - self.rgb_mean) / self.rgb_std)
+            if self.obs_space in ("depth", "rgbd"):
+                channels.append(self._scaled_depth(self._depth_m(batch, cam))[:, None])
+            if self.obs_space == "pointmap":
+                points, valid = self._world_points(batch, cam)
+                if to_frame is not None:
+                    points = geometry.transform_points(points, to_frame)
+                channels.append((points * valid[..., None]).permute(0, 3, 1, 2))
+            per_camera.append(torch.cat(channels, dim=1))
+        return torch.stack(per_camera, dim=1)
+
+    def _pointcloud(self, batch: dict, ee_pose: Tensor | None) -> PointCloud:
+        xyz, rgb, valid = [], [], []
+        for cam in self.cameras:
+            points, ok = self._world_points(batch, cam)
+            colour = self._rgb(batch, cam)
+            if colour.shape[-2:] != points.shape[1:3]:
+                raise SchemaError(
+                    f"{image_key(cam)} is {tuple(colour.shape[-2:])} but {depth_key(cam)} is "
+                    f"{tuple(points.shape[1:3])}: point clouds need depth aligned to colour at the same resolution."
+                )
+            xyz.append(points.flatten(1, 2))
+            rgb.append(colour.permute(0, 2, 3, 1).flatten(1, 2) * 2 - 1)
+            valid.append(ok.flatten(1))
+        xyz, rgb, valid = torch.cat(xyz, 1), torch.cat(rgb, 1), torch.cat(valid, 1)
+        valid = geometry.crop_mask(xyz, valid, self.workspace)
+        empty = ~valid.any(dim=1)
+        if bool(empty.any()):
+            raise SchemaError(
+                f"{', '.join(depth_key(c) for c in self.cameras)}: {int(empty.sum())} of {len(empty)} frames have no "
+                f"valid point inside the workspace {self.workspace} (all depth is 0 or outside the box). Check that "
+                "depth is in millimetres, that cam2world maps camera -> world, and --policy.workspace."
+            )
+        xyz, rgb, valid = geometry.pack(valid, xyz, rgb)
+        to_frame = self._frame_transform(self.cameras[0], batch, ee_pose)
+        if to_frame is not None:
+            xyz = geometry.transform_points(xyz, to_frame)
+        keep = geometry.voxel_sample(xyz, valid, self.voxel_size, random=self.training)
+        xyz, rgb, mask = geometry.pack(keep, xyz, rgb)
+        if self.point_features == "rgb+xyz":
+            feats = torch.cat([rgb, xyz], -1)
+        else:
+            feats = xyz if self.point_features == "xyz" else rgb
+        return PointCloud(xyz=xyz * mask[..., None], features=feats * mask[..., None], mask=mask)
+
+
+def _require(batch: dict, key: str) -> Tensor:
+    if key not in batch:
+        raise SchemaError(
+            f"Missing {key!r} in the observation batch (it has {sorted(k for k in batch if k.startswith('observation'))}). "
+            "The chosen obs_space/cameras need it: record it in the dataset / env observation, or change "
+            "--policy.obs_space / --policy.cameras."
+        )
+    return batch[key]
