@@ -1,27 +1,71 @@
-"""Two narrow fixes to LeRobot 0.4.4's dataset loading, applied when the plugin is imported.
+"""Narrow fixes to LeRobot 0.4.4's dataset loading, applied when the plugin is imported.
 
-1. Column-only queries (DESIGN §10). `LeRobotDataset._query_hf_dataset` fetches an action chunk with
-   `hf_dataset[key][indices]`; with `datasets` 4.x that formats EVERY column of those rows — depth arrays
-   included — through Python lists (~seconds per ACT sample at 128²). Selecting the one column first returns
-   the same tensors in milliseconds. Drop this patch once LeRobot queries by column upstream.
+1. Array columns through Python lists (DESIGN §10). LeRobot formats its `datasets.Dataset` with
+   `set_transform(hf_transform_to_torch)`: every read first turns the Arrow rows into Python lists, then
+   `torch.tensor(list)`. A 128² depth frame is 16k nested Python ints: ~30 ms per row, and an ACT chunk query
+   (`hf_dataset[key][indices]`) formats every column of its 100 rows, depth included: seconds per sample.
+   `LeRobotTorchFormatter` produces the same output — tensors per row, lists of tensors per batch / column,
+   PIL images as float CHW in [0, 1], same dtypes — from NumPy extraction instead, and
+   `query_hf_dataset_by_column` reads only the queried column. Drop both once LeRobot fixes this upstream.
 2. Video decoding. LeRobot picks torchcodec whenever the package is installed, even when its FFmpeg shared
-   libraries are missing and it cannot load; then fall back to the `pyav` backend instead of crashing.
+   libraries are missing and it cannot load; then decode with the `pyav` backend instead of crashing.
 
-Both patches are idempotent and only target LeRobot 0.4.x, the version this plugin pins.
+`stock_loading()` restores LeRobot's behaviour for the equivalence test and the loading benchmark.
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
 
+import datasets
+import PIL.Image
 import torch
+from datasets.formatting import _register_formatter
+from datasets.formatting.torch_formatter import TorchFormatter
 from lerobot.datasets import lerobot_dataset
+from torchvision.transforms.functional import to_tensor
 
 logger = logging.getLogger(__name__)
 
-_ORIGINAL_QUERY = lerobot_dataset.LeRobotDataset._query_hf_dataset
-_ORIGINAL_DECODE = lerobot_dataset.decode_video_frames
+FORMAT_TYPE = "lerobot_obsbench_torch"
+_STOCK = {
+    "query": lerobot_dataset.LeRobotDataset._query_hf_dataset,
+    "load": lerobot_dataset.LeRobotDataset.load_hf_dataset,
+    "decode": lerobot_dataset.decode_video_frames,
+}
+
+
+class LeRobotTorchFormatter(TorchFormatter):
+    """`hf_transform_to_torch`'s exact output, built from NumPy extraction instead of Python lists."""
+
+    def _tensorize(self, value):
+        if isinstance(value, PIL.Image.Image):
+            return to_tensor(value)  # what LeRobot's transform does: (C, H, W) float in [0, 1]
+        return super()._tensorize(value)
+
+    def _per_row(self, column):
+        return [self._recursive_tensorize(value) for value in column]
+
+    def format_column(self, pa_table):
+        column = self.numpy_arrow_extractor().extract_column(pa_table)
+        column = self.python_features_decoder.decode_column(column, pa_table.column_names[0])
+        return self._per_row(column)
+
+    def format_batch(self, pa_table):
+        batch = self.numpy_arrow_extractor().extract_batch(pa_table)
+        batch = self.python_features_decoder.decode_batch(batch)
+        return {name: self._per_row(column) for name, column in batch.items()}
+
+
+_register_formatter(LeRobotTorchFormatter, FORMAT_TYPE)
+
+
+def load_hf_dataset_fast(self) -> datasets.Dataset:
+    hf_dataset = _STOCK["load"](self)
+    hf_dataset.set_format(FORMAT_TYPE)
+    return hf_dataset
 
 
 def query_hf_dataset_by_column(self, query_indices: dict[str, list[int]]) -> dict:
@@ -41,8 +85,8 @@ def torchcodec_loads() -> bool:
     try:
         import torchcodec.decoders  # noqa: F401
     except Exception as err:  # torchcodec raises RuntimeError/OSError when FFmpeg is missing
-        logger.warning("torchcodec cannot load (%s); decoding videos with the 'pyav' backend instead.",
-                       str(err).splitlines()[0] if str(err) else type(err).__name__)
+        first_line = str(err).splitlines()[0] if str(err) else type(err).__name__
+        logger.warning("torchcodec cannot load (%s); decoding videos with the 'pyav' backend.", first_line)
         return False
     return True
 
@@ -50,15 +94,24 @@ def torchcodec_loads() -> bool:
 def decode_video_frames_with_fallback(video_path, timestamps, tolerance_s, backend=None):
     if backend in (None, "torchcodec") and not torchcodec_loads():
         backend = "pyav"
-    return _ORIGINAL_DECODE(video_path, timestamps, tolerance_s, backend)
+    return _STOCK["decode"](video_path, timestamps, tolerance_s, backend)
+
+
+def _set(query, load) -> None:
+    lerobot_dataset.LeRobotDataset._query_hf_dataset = query
+    lerobot_dataset.LeRobotDataset.load_hf_dataset = load
 
 
 def apply() -> None:
-    lerobot_dataset.LeRobotDataset._query_hf_dataset = query_hf_dataset_by_column
+    _set(query_hf_dataset_by_column, load_hf_dataset_fast)
     lerobot_dataset.decode_video_frames = decode_video_frames_with_fallback
 
 
-def revert() -> None:
-    """Restore stock LeRobot behaviour (used by the equivalence test and the loading benchmark)."""
-    lerobot_dataset.LeRobotDataset._query_hf_dataset = _ORIGINAL_QUERY
-    lerobot_dataset.decode_video_frames = _ORIGINAL_DECODE
+@contextlib.contextmanager
+def stock_loading():
+    """Temporarily restore LeRobot's own array loading (datasets opened inside use the stock path)."""
+    _set(_STOCK["query"], _STOCK["load"])
+    try:
+        yield
+    finally:
+        apply()
