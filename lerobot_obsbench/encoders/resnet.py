@@ -21,7 +21,13 @@ def load_torchvision_state_dict(pretrained: str, arch: str) -> dict[str, Tensor]
     local file holding a torchvision-layout state dict (optionally under a "state_dict" key)."""
     if pretrained == "imagenet":
         weights = torchvision.models.get_weight(IMAGENET_WEIGHTS[arch])
-        return weights.get_state_dict(progress=False)
+        try:
+            return weights.get_state_dict(progress=False)
+        except OSError as err:  # URLError is an OSError: no network, proxy refused...
+            raise RuntimeError(
+                f"Could not download torchvision's ImageNet weights for {arch} ({err}). On an offline machine, "
+                f"save them elsewhere and pass the file: --policy.pretrained=/path/to/{arch}.pth"
+            ) from err
     path = Path(pretrained)
     if not path.is_file():
         raise FileNotFoundError(

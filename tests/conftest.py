@@ -1,0 +1,41 @@
+"""Shared fixtures: datasets in the OBSBench schema written by `scripts/make_synthetic_dataset.py`, which uses
+stock LeRobot only (it stands for "someone else's recording code")."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _load_synthetic():
+    spec = importlib.util.spec_from_file_location("make_synthetic_dataset", ROOT / "scripts" / "make_synthetic_dataset.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+synthetic = _load_synthetic()
+
+
+@pytest.fixture(scope="session")
+def synthetic_module():
+    return synthetic
+
+
+@pytest.fixture(scope="session")
+def tiny_dataset(tmp_path_factory) -> Path:
+    """6 episodes x 12 frames at 40x40, RGB as video."""
+    return synthetic.write_dataset(tmp_path_factory.mktemp("ds") / "tiny", episodes=6, frames=12, size=40, seed=0)
+
+
+@pytest.fixture(scope="session")
+def image_dataset(tmp_path_factory) -> Path:
+    """Same scene with RGB stored as PNG images instead of video."""
+    return synthetic.write_dataset(tmp_path_factory.mktemp("ds") / "img", episodes=2, frames=8, size=32, seed=1,
+                                   use_video=False)

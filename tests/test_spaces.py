@@ -1,0 +1,128 @@
+"""ObservationAdapter: every space's output, and clear errors on bad sensor input."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from lerobot_obsbench import geometry
+from lerobot_obsbench.datasets.schema import SchemaError
+from lerobot_obsbench.spaces import ObservationAdapter
+from tests.helpers import CAM, frame_batch
+
+WORKSPACE = (-0.5, 0.5, -0.5, 0.5, 0.005, 0.5)
+
+
+@pytest.fixture(scope="module")
+def batch(synthetic_module):
+    return frame_batch(synthetic_module, batch_size=3, size=40)
+
+
+@pytest.mark.parametrize("space,channels", [("rgb", 3), ("depth", 1), ("rgbd", 4), ("pointmap", 6)])
+def test_image_spaces_shapes_and_content(batch, space, channels):
+    out = ObservationAdapter(space, [CAM]).eval()(batch)
+    assert out.shape == (3, 1, channels, 40, 40)
+    assert torch.isfinite(out).all()
+    if space == "rgbd":
+        rgb = ObservationAdapter("rgb", [CAM])(batch)
+        depth = ObservationAdapter("depth", [CAM])(batch)
+        assert torch.equal(out, torch.cat([rgb, depth], dim=2))
+    if space == "depth":
+        assert out.min() >= -1 and out.max() <= 1
+
+
+def test_pointmap_xyz_channels_are_world_points(batch):
+    out = ObservationAdapter("pointmap", [CAM])(batch)
+    xyz = out[:, 0, 3:].permute(0, 2, 3, 1)
+    valid = batch[f"observation.depth.{CAM}"][..., 0] > 0
+    # the table is at z = 0 and nothing is below it
+    assert xyz[valid][:, 2].min() > -2e-3
+    assert (xyz[~valid] == 0).all()
+
+
+def test_pointcloud_is_cropped_voxelised_and_finds_the_cube(batch):
+    adapter = ObservationAdapter("pointcloud", [CAM], workspace=WORKSPACE, voxel_size=0.005).eval()
+    cloud = adapter(batch)
+    assert cloud.xyz.shape[:2] == cloud.mask.shape and cloud.features.shape[-1] == 6
+    for b in range(3):
+        pts = cloud.xyz[b][cloud.mask[b]]
+        assert len(pts) > 10
+        assert (pts[:, 2] > 0.005).all(), "ground must be removed"
+        cells = torch.floor(pts / 0.005).long()
+        assert len(torch.unique(cells, dim=0)) == len(cells), "one point per voxel"
+        # red points (rgb feature ~ (0.73, -0.76, -0.76)) lie on the cube
+        red = cloud.features[b][cloud.mask[b]][:, 0] > 0.5
+        cube = batch["cube"][b].float()
+        assert red.any() and (pts[red] - cube).abs().max() < 0.026 + 2e-3
+    assert (cloud.features[~cloud.mask] == 0).all()
+
+
+@pytest.mark.parametrize("features,channels", [("xyz", 3), ("rgb", 3), ("rgb+xyz", 6)])
+def test_point_feature_choices(batch, features, channels):
+    cloud = ObservationAdapter("pointcloud", [CAM], point_features=features, workspace=WORKSPACE).eval()(batch)
+    assert cloud.features.shape[-1] == channels
+    if features == "xyz":
+        assert torch.equal(cloud.features, cloud.xyz)
+
+
+def test_camera_and_ee_frames(batch):
+    cam2world = batch[f"observation.cam2world.{CAM}"]
+    # pointmap in the camera frame: z is exactly the stored depth
+    pointmap = ObservationAdapter("pointmap", [CAM], frame="camera")(batch)
+    z = pointmap[:, 0, 5]
+    assert torch.allclose(z, batch[f"observation.depth.{CAM}"][..., 0].float() / 1000, atol=1e-5)
+    # point cloud in the camera frame: mapped back to the world, every point lies in the workspace crop
+    cam = ObservationAdapter("pointcloud", [CAM], frame="camera", workspace=WORKSPACE).eval()(batch)
+    back = geometry.transform_points(cam.xyz, cam2world)
+    assert geometry.crop_mask(back, cam.mask, [w + d for w, d in zip(WORKSPACE, [-1e-4, 1e-4] * 3)]).sum() == cam.mask.sum()
+    assert (cam.xyz[cam.mask][:, 2] > 0.3).all(), "camera z is the distance in front of the camera"
+    # end-effector frame: the gripper box is centred on the ee origin; undo the ee yaw to get its faces back
+    state = batch["observation.state"]
+    ee_pose = geometry.pose_to_matrix(state[:, -7:-4], state[:, -4:])
+    ee = ObservationAdapter("pointcloud", [CAM], frame="ee", workspace=WORKSPACE).eval()(batch, ee_pose=ee_pose)
+    blue = (ee.features[..., 2] > 0.5) & ee.mask
+    aligned = geometry.transform_points(ee.xyz, ee_pose) - ee_pose[:, None, :3, 3]
+    assert blue.any() and aligned[blue].abs().max() < 0.015 + 2e-3
+    with pytest.raises(SchemaError, match="end-effector pose"):
+        ObservationAdapter("pointcloud", [CAM], frame="ee", workspace=WORKSPACE)(batch)
+
+
+def _bad(batch, key, value):
+    return {**batch, key: value}
+
+
+def test_bad_depth_dtype_and_shape(batch):
+    adapter = ObservationAdapter("rgbd", [CAM])
+    key = f"observation.depth.{CAM}"
+    with pytest.raises(SchemaError, match="integer millimetres"):
+        adapter(_bad(batch, key, batch[key].float() / 1000))
+    with pytest.raises(SchemaError, match=r"\(B, H, W, 1\)"):
+        adapter(_bad(batch, key, batch[key][..., 0]))
+
+
+def test_all_invalid_depth_frame_is_an_empty_cloud_error(batch):
+    key = f"observation.depth.{CAM}"
+    depth = batch[key].clone()
+    depth[1] = 0
+    with pytest.raises(SchemaError, match="1 of 3 frames have no valid point"):
+        ObservationAdapter("pointcloud", [CAM], workspace=WORKSPACE)(_bad(batch, key, depth))
+
+
+def test_non_finite_intrinsics_and_missing_keys(batch):
+    key = f"observation.intrinsics.{CAM}"
+    K = batch[key].clone()
+    K[0, 0, 0] = float("nan")
+    with pytest.raises(SchemaError, match="intrinsics must be finite"):
+        ObservationAdapter("pointcloud", [CAM])(_bad(batch, key, K))
+    missing = {k: v for k, v in batch.items() if not k.startswith("observation.cam2world")}
+    with pytest.raises(SchemaError, match="Missing 'observation.cam2world.base_camera'"):
+        ObservationAdapter("pointmap", [CAM])(missing)
+
+
+def test_bad_configuration_values():
+    with pytest.raises(ValueError, match="obs_space"):
+        ObservationAdapter("lidar", [CAM])
+    with pytest.raises(ValueError, match="frame"):
+        ObservationAdapter("pointcloud", [CAM], frame="table")
+    with pytest.raises(ValueError, match="workspace"):
+        ObservationAdapter("pointcloud", [CAM], workspace=(1, -1, 0, 1, 0, 1))

@@ -1,0 +1,70 @@
+"""Stock `lerobot-train` trains every (policy x observation space) pair on a dataset written by non-plugin code,
+offline, on CPU, and writes a checkpoint — no plugin flag, no --policy.repo_id."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from lerobot_obsbench.presets import preset_args
+
+BIN = Path(sys.executable).parent
+SPACES = ["rgb", "depth", "rgbd", "pointmap", "pointcloud"]
+
+
+def lerobot_train(dataset: Path, out: Path, policy_type: str, obs_space: str, *extra: str) -> subprocess.CompletedProcess:
+    cmd = [
+        str(BIN / "lerobot-train"), f"--policy.type={policy_type}", f"--policy.obs_space={obs_space}",
+        "--policy.device=cpu", "--dataset.repo_id=local/synthetic", f"--dataset.root={dataset}",
+        "--policy.workspace=[-0.5,0.5,-0.5,0.5,0.005,0.5]", "--batch_size=2", "--steps=2", "--save_freq=2",
+        "--log_freq=1", "--num_workers=0", "--wandb.enable=false", f"--output_dir={out}",
+        *preset_args("tiny", policy_type, obs_space), *extra,
+    ]
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "HF_DATASETS_OFFLINE": "1"}
+    return subprocess.run(cmd, capture_output=True, text=True, env=env, stdin=subprocess.DEVNULL, timeout=600)
+
+
+@pytest.mark.parametrize("obs_space", SPACES)
+@pytest.mark.parametrize("policy_type", ["obs_act", "obs_diffusion"])
+def test_lerobot_train_every_pair(tiny_dataset, tmp_path, policy_type, obs_space):
+    proc = lerobot_train(tiny_dataset, tmp_path / "run", policy_type, obs_space)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    ckpt = tmp_path / "run" / "checkpoints" / "last" / "pretrained_model"
+    assert (ckpt / "model.safetensors").is_file()
+    config = json.loads((ckpt / "config.json").read_text())
+    assert config["type"] == policy_type and config["obs_space"] == obs_space
+    assert config["cameras"] == ["base_camera"]
+    assert "step:2" in proc.stdout + proc.stderr
+
+
+def test_lerobot_train_reports_a_space_the_dataset_cannot_serve(tmp_path, synthetic_module):
+    # a dataset recorded without depth: rgb works, pointcloud must fail early and name the missing key
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    features = synthetic_module.features(32, "base_camera", use_video=False)
+    features = {k: v for k, v in features.items() if "depth" not in k}
+    ds = LeRobotDataset.create("local/rgb_only", fps=10, features=features, root=tmp_path / "rgb_only",
+                               use_videos=False)
+    import numpy as np
+
+    for _ in range(2):
+        for _ in range(4):
+            ds.add_frame({
+                "observation.images.base_camera": np.zeros((32, 32, 3), np.uint8),
+                "observation.intrinsics.base_camera": np.eye(3, dtype=np.float32),
+                "observation.cam2world.base_camera": np.eye(4, dtype=np.float32),
+                "observation.state": np.zeros(15, np.float32),
+                "observation.environment_state": np.zeros(3, np.float32),
+                "action": np.zeros(7, np.float32),
+                "task": "t",
+            })
+        ds.save_episode()
+    ds.finalize()
+    proc = lerobot_train(tmp_path / "rgb_only", tmp_path / "run", "obs_act", "pointcloud")
+    assert proc.returncode != 0
+    assert "observation.depth.<cam>" in proc.stderr and "obs_space='pointcloud' needs" in proc.stderr
