@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+import lerobot_obsbench  # noqa: F401  (registers obs_act / obs_diffusion, as LeRobot's plugin discovery does)
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

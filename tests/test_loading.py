@@ -1,0 +1,81 @@
+"""The plugin's dataset-loading fixes return exactly what stock LeRobot returns."""
+
+from __future__ import annotations
+
+import logging
+
+import pytest
+import torch
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+from lerobot_obsbench import patches
+
+DELTAS = {  # ACT-style action chunk and Diffusion-style observation history on every kind of column
+    "action": [i / 10 for i in range(12)],
+    "observation.images.base_camera": [-0.1, 0.0],
+    "observation.depth.base_camera": [-0.1, 0.0],
+    "observation.state": [-0.1, 0.0],
+}
+
+
+def assert_same_sample(a: dict, b: dict) -> None:
+    assert a.keys() == b.keys()
+    for key in a:
+        if isinstance(a[key], torch.Tensor):
+            assert a[key].dtype == b[key].dtype and a[key].shape == b[key].shape, key
+            assert torch.equal(a[key], b[key]), key
+        else:
+            assert a[key] == b[key], key
+
+
+@pytest.mark.parametrize("fixture", ["tiny_dataset", "image_dataset"])
+@pytest.mark.parametrize("episodes", [None, [1]])
+def test_samples_identical_to_stock_lerobot(request, fixture, episodes):
+    root = request.getfixturevalue(fixture)
+    fast = LeRobotDataset("local/test", root=root, delta_timestamps=DELTAS, episodes=episodes)
+    with patches.stock_loading():
+        stock = LeRobotDataset("local/test", root=root, delta_timestamps=DELTAS, episodes=episodes)
+        expected = [stock[i] for i in range(len(stock))]
+    assert fast.hf_dataset.format["type"] == patches.FORMAT_TYPE
+    assert stock.hf_dataset.format["type"] == "custom"
+    assert len(fast) == len(expected)
+    for i, sample in enumerate(expected):
+        assert_same_sample(sample, fast[i])
+    # padding flags at episode ends are part of the contract
+    assert fast[len(fast) - 1]["action_is_pad"].any()
+
+
+def test_depth_arrays_keep_lerobot_dtype_and_layout(tiny_dataset):
+    sample = LeRobotDataset("local/test", root=tiny_dataset)[3]
+    assert sample["observation.depth.base_camera"].dtype == torch.int64
+    assert sample["observation.depth.base_camera"].shape == (40, 40, 1)
+    assert sample["observation.images.base_camera"].dtype == torch.float32
+    assert sample["observation.images.base_camera"].shape == (3, 40, 40)
+
+
+def test_video_backend_falls_back_to_pyav_when_torchcodec_cannot_load(tiny_dataset, monkeypatch, caplog):
+    calls = []
+    original = patches._STOCK["decode"]
+
+    def spy(path, timestamps, tolerance_s, backend=None):
+        calls.append(backend)
+        return original(path, timestamps, tolerance_s, "pyav")
+
+    monkeypatch.setitem(patches._STOCK, "decode", spy)
+    patches.torchcodec_loads.cache_clear()
+    monkeypatch.setattr("builtins.__import__", _failing_import("torchcodec.decoders", __import__))
+    with caplog.at_level(logging.WARNING):
+        frame = LeRobotDataset("local/test", root=tiny_dataset, video_backend="torchcodec")[0]
+    patches.torchcodec_loads.cache_clear()
+    assert calls == ["pyav"]
+    assert frame["observation.images.base_camera"].shape == (3, 40, 40)
+    assert "decoding videos with the 'pyav' backend" in caplog.text
+
+
+def _failing_import(name, real_import):
+    def fake(module, *args, **kwargs):
+        if module == name:
+            raise OSError("libavutil.so: cannot open shared object file")
+        return real_import(module, *args, **kwargs)
+
+    return fake
