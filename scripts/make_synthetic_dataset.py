@@ -87,8 +87,8 @@ def quat_z(angle: float) -> np.ndarray:
     return np.array([np.cos(angle / 2), 0.0, 0.0, np.sin(angle / 2)])
 
 
-def features(size: int, camera: str, use_video: bool) -> dict:
-    return {
+def features(size: int, camera: str, use_video: bool, with_goal: bool = True) -> dict:
+    feats = {
         f"observation.images.{camera}": {
             "dtype": "video" if use_video else "image",
             "shape": (size, size, 3),
@@ -105,6 +105,9 @@ def features(size: int, camera: str, use_video: bool) -> dict:
         "observation.environment_state": {"dtype": "float32", "shape": (3,), "names": None},
         "action": {"dtype": "float32", "shape": (ACTION_DIM,), "names": None},
     }
+    if not with_goal:
+        del feats["observation.environment_state"]
+    return feats
 
 
 def episode(rng, frames: int):
@@ -123,29 +126,33 @@ def episode(rng, frames: int):
 
 
 def write_dataset(out: Path, episodes: int, frames: int, size: int, seed: int, camera: str = "base_camera",
-                  use_video: bool = True, repo_id: str = "local/obsbench_synthetic") -> Path:
+                  use_video: bool = True, with_goal: bool = True, repo_id: str = "local/obsbench_synthetic") -> Path:
+    """Write the dataset; `with_goal=False` leaves out the cube position (environment_state), so that a policy
+    can only find the cube in its observations."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     rng = np.random.default_rng(seed)
     K = intrinsics(size)
     cam2world = look_at(eye=(0.45, 0.0, 0.55), target=(0.0, 0.0, 0.0))
-    ds = LeRobotDataset.create(repo_id=repo_id, fps=10, features=features(size, camera, use_video),
+    ds = LeRobotDataset.create(repo_id=repo_id, fps=10, features=features(size, camera, use_video, with_goal),
                                root=out, robot_type="synthetic", use_videos=use_video)
     for _ in range(episodes):
         for cube, ee, yaw, action in episode(rng, frames):
             boxes = [(cube, CUBE_HALF, CUBE_RGB), (ee, GRIPPER_HALF, GRIPPER_RGB)]
             rgb, depth, _ = render(K, cam2world, size, boxes)
             state = np.concatenate([rng.normal(0, 0.1, 7), [1.0], ee, quat_z(yaw)]).astype(np.float32)
-            ds.add_frame({
+            frame = {
                 f"observation.images.{camera}": rgb,
                 f"observation.depth.{camera}": depth,
                 f"observation.intrinsics.{camera}": K.astype(np.float32),
                 f"observation.cam2world.{camera}": cam2world.astype(np.float32),
                 "observation.state": state,
-                "observation.environment_state": cube.astype(np.float32),
                 "action": action.astype(np.float32),
                 "task": "move the gripper above the red cube",
-            })
+            }
+            if with_goal:
+                frame["observation.environment_state"] = cube.astype(np.float32)
+            ds.add_frame(frame)
         ds.save_episode()
     ds.finalize()
     return out
@@ -159,8 +166,10 @@ def main() -> None:
     parser.add_argument("--size", type=int, default=64)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--images", action="store_true", help="store RGB as PNG images instead of video")
+    parser.add_argument("--no-goal", action="store_true", help="leave out observation.environment_state")
     args = parser.parse_args()
-    write_dataset(args.out, args.episodes, args.frames, args.size, args.seed, use_video=not args.images)
+    write_dataset(args.out, args.episodes, args.frames, args.size, args.seed, use_video=not args.images,
+                  with_goal=not args.no_goal)
     print(f"wrote {args.episodes} episodes x {args.frames} frames to {args.out}")
 
 

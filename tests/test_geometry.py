@@ -154,10 +154,14 @@ def test_fps_matches_brute_force_on_padded_batches(backend):
         assert (idx[2, 40:] == idx[2, 0]).all()
 
 
-def test_knn_matches_brute_force_and_ignores_padding():
+@pytest.mark.parametrize("backend", ["kdtree", "dense"])
+def test_knn_matches_brute_force_and_ignores_padding(backend):
     xyz, mask = _padded_cloud([200, 5], 20, seed=7)
     query = torch.rand(2, 17, 3)
-    idx = geometry.knn(query, xyz, mask, k=8, chunk=5)
+    if backend == "dense":  # the GPU path, run here on CPU tensors
+        idx = geometry._knn_dense(query, xyz, mask, k=8, chunk=5)
+    else:
+        idx = geometry.knn(query, xyz, mask, k=8)
     assert idx.shape == (2, 17, 8)
     for b in range(2):
         valid = torch.nonzero(mask[b]).flatten()

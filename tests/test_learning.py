@@ -24,6 +24,7 @@ def task_dataset(tmp_path_factory, synthetic_module):
                                           frames=10, size=48, seed=3)
 
 
+@pytest.mark.slow
 def test_pointcloud_policy_beats_the_mean_action(task_dataset):
     torch.manual_seed(0)
     meta = LeRobotDatasetMetadata("local/learn", root=task_dataset)

@@ -29,6 +29,7 @@ def lerobot_train(dataset: Path, out: Path, policy_type: str, obs_space: str, *e
     return subprocess.run(cmd, capture_output=True, text=True, env=env, stdin=subprocess.DEVNULL, timeout=600)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("obs_space", SPACES)
 @pytest.mark.parametrize("policy_type", ["obs_act", "obs_diffusion"])
 def test_lerobot_train_every_pair(tiny_dataset, tmp_path, policy_type, obs_space):
@@ -42,6 +43,7 @@ def test_lerobot_train_every_pair(tiny_dataset, tmp_path, policy_type, obs_space
     assert "step:2" in proc.stdout + proc.stderr
 
 
+@pytest.mark.slow
 def test_lerobot_train_reports_a_space_the_dataset_cannot_serve(tmp_path, synthetic_module):
     # a dataset recorded without depth: rgb works, pointcloud must fail early and name the missing key
     from lerobot.datasets.lerobot_dataset import LeRobotDataset

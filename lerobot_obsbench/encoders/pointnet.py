@@ -54,18 +54,18 @@ def shared_mlp(in_channels: int, widths: tuple[int, ...] = POINTNET_WIDTHS) -> n
     return nn.Sequential(*layers)
 
 
-def group(xyz: Tensor, features: Tensor, mask: Tensor, num_tokens: int, knn: int) -> tuple[Tensor, Tensor, Tensor]:
-    """FPS seeds + kNN groups: returns grouped (B, S, k, 3 + C) = (relative xyz ‖ features), seed xyz (B, S, 3)
-    and the seed mask (B, S)."""
+def group(xyz: Tensor, mask: Tensor, num_tokens: int, knn: int) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """FPS seeds + kNN groups: neighbour indices (B, S, k), their xyz relative to the seed (B, S, k, 3), seed xyz
+    (B, S, 3) and the seed mask (B, S)."""
     seed_idx, seed_mask = geometry.farthest_point_sample(xyz, mask, num_tokens)
     seeds = geometry.gather(xyz, seed_idx)
     neighbours = geometry.knn(seeds, xyz, mask, knn)
-    rel = geometry.gather(xyz, neighbours) - seeds[:, :, None]
-    return torch.cat([rel, geometry.gather(features, neighbours)], dim=-1), seeds, seed_mask
+    return neighbours, geometry.gather(xyz, neighbours) - seeds[:, :, None], seeds, seed_mask
 
 
 def pool_groups(module: nn.Module, grouped: Tensor, seed_mask: Tensor) -> Tensor:
-    """module over every grouped point of valid seeds, max over each group -> (B, S, D).
+    """module over every grouped point of valid seeds (so BatchNorm sees real groups only), max over each
+    group -> (B, S, D).
 
     Invalid seed slots (clouds with fewer points than seeds) copy the first seed's token, like the repeated
     indices of the reference CUDA FPS: ACT's decoder has no key-padding mask, so slots must hold real tokens.
@@ -91,7 +91,11 @@ class PointNetEncoder(nn.Module):
         if sampling == "post":
             self.backbone = shared_mlp(in_channels)
             if output == "tokens":
-                self.tokenizer = nn.Sequential(nn.Linear(3 + width, dim), nn.BatchNorm1d(dim), nn.ReLU(inplace=True))
+                # Linear(relative xyz ‖ feature) split in two: the feature part is applied once per point before
+                # grouping instead of once per (seed, neighbour) pair — the same map, ~knn times fewer FLOPs.
+                self.feature_proj = nn.Linear(width, dim)
+                self.offset_proj = nn.Linear(3, dim, bias=False)
+                self.group_act = nn.Sequential(nn.BatchNorm1d(dim), nn.ReLU(inplace=True))
         else:
             self.backbone = shared_mlp(3 + in_channels)
             if output == "tokens":
@@ -104,10 +108,12 @@ class PointNetEncoder(nn.Module):
             point_feats = masked_apply(self.backbone, cloud.features, cloud.mask)
             if self.output == "global":
                 return point_feats.masked_fill(~cloud.mask[..., None], float("-inf")).amax(dim=1)
-            grouped, seeds, seed_mask = group(cloud.xyz, point_feats, cloud.mask, self.num_tokens, self.knn)
-            tokens = pool_groups(self.tokenizer, grouped, seed_mask)
+            neighbours, offsets, seeds, seed_mask = group(cloud.xyz, cloud.mask, self.num_tokens, self.knn)
+            projected = geometry.gather(masked_apply(self.feature_proj, point_feats, cloud.mask), neighbours)
+            tokens = pool_groups(self.group_act, projected + self.offset_proj(offsets), seed_mask)
         else:
-            grouped, seeds, seed_mask = group(cloud.xyz, cloud.features, cloud.mask, self.num_tokens, self.knn)
+            neighbours, offsets, seeds, seed_mask = group(cloud.xyz, cloud.mask, self.num_tokens, self.knn)
+            grouped = torch.cat([offsets, geometry.gather(cloud.features, neighbours)], dim=-1)
             group_feats = pool_groups(self.backbone, grouped, seed_mask)
             if self.output == "global":
                 return group_feats.amax(dim=1)

@@ -1,0 +1,36 @@
+# Every target installs what it needs into .venv first (python 3.11, lerobot 0.4.4 and this plugin).
+PYTHON ?= $(shell command -v python3.11 || command -v python3)
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: install main test test-fast bench clean
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+install: $(STAMP)
+
+# README main job: the smallest real end-to-end training run (synthetic schema dataset -> lerobot-train).
+main: $(STAMP)
+	$(BIN)/python scripts/quick_train.py
+
+# README test command: the whole suite, fast tests first, then the slow end-to-end ones.
+test: $(STAMP)
+	$(BIN)/python -m pytest -m "not slow" -q
+	$(BIN)/python -m pytest -m slow -q
+
+test-fast: $(STAMP)
+	$(BIN)/python -m pytest -m "not slow" -q
+
+# Speed benchmarks (write JSON under benchmarks/results/).
+bench: $(STAMP)
+	$(BIN)/python -m benchmarks.bench_loading
+	$(BIN)/python -m benchmarks.bench_preprocess
+	$(BIN)/python -m benchmarks.bench_train_step
+
+clean:
+	rm -rf outputs .pytest_cache

@@ -1,0 +1,62 @@
+"""`obsbench` commands and presets."""
+
+from __future__ import annotations
+
+import shutil
+
+import pytest
+import torch
+
+from lerobot_obsbench.cli import main
+from lerobot_obsbench.policies.common import OneCycleSchedulerConfig
+from lerobot_obsbench.presets import preset_args
+
+
+def test_encoders_lists_spaces(capsys):
+    assert main(["encoders", "--obs-space", "pointcloud"]) == 0
+    out = capsys.readouterr().out
+    assert "pointnet" in out and "resnet18" not in out
+
+
+def test_validate_reports_every_space(tiny_dataset, capsys):
+    assert main(["validate", "--root", str(tiny_dataset)]) == 0
+    out = capsys.readouterr().out
+    assert all(f"ok      {space}" in out for space in ("rgb", "depth", "rgbd", "pointmap", "pointcloud"))
+    assert "6 episodes, 72 frames" in out
+
+
+def test_validate_names_the_missing_key(tiny_dataset, tmp_path, capsys):
+    # the same dataset with its depth feature removed from the metadata
+    import json
+
+    root = tmp_path / "nodepth"
+    shutil.copytree(tiny_dataset, root)
+    info = json.loads((root / "meta" / "info.json").read_text())
+    del info["features"]["observation.depth.base_camera"]
+    (root / "meta" / "info.json").write_text(json.dumps(info))
+    assert main(["validate", "--root", str(root), "--obs-space", "pointcloud"]) == 1
+    assert "observation.depth.<cam>" in capsys.readouterr().out
+    assert main(["validate", "--root", str(root), "--obs-space", "rgb"]) == 0
+
+
+def test_preset_flags_parse_back(capsys):
+    assert main(["preset", "--preset", "cpu", "--policy", "obs_diffusion", "--obs-space", "rgbd"]) == 0
+    out = capsys.readouterr().out.split()
+    assert "--policy.down_dims=[64,128,256]" in out and "--policy.encoder=resnet18" in out
+    assert "--policy.encoder=resnet18" not in preset_args("cpu", "obs_act", "pointcloud")
+    assert preset_args("paper", "obs_act", "rgb") == []
+    with pytest.raises(ValueError, match="Unknown preset"):
+        preset_args("gpu", "obs_act", "rgb")
+
+
+def test_onecycle_schedule_follows_the_paper():
+    opt = torch.optim.AdamW([torch.nn.Parameter(torch.zeros(1))], lr=1e-4)
+    sched = OneCycleSchedulerConfig().build(opt, num_training_steps=100)
+    lrs = []
+    for _ in range(100):
+        lrs.append(opt.param_groups[0]["lr"])
+        opt.step()
+        sched.step()
+    assert lrs[0] == pytest.approx(1e-6)  # max / div_factor 100
+    assert max(lrs) == pytest.approx(1e-4, rel=1e-3) and lrs.index(max(lrs)) in (14, 15)  # pct_start 0.15
+    assert lrs[-1] < 1e-8 * 2  # final lr = initial / 1000
