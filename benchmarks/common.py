@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import os
 import platform
-import sys
 import time
 from pathlib import Path
 
@@ -18,11 +16,9 @@ RESULTS = ROOT / "benchmarks" / "results"
 
 def load_synthetic():
     """The stock-LeRobot synthetic scene writer (scripts/make_synthetic_dataset.py)."""
-    spec = importlib.util.spec_from_file_location("make_synthetic_dataset", ROOT / "scripts" / "make_synthetic_dataset.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    from scripts import make_synthetic_dataset
+
+    return make_synthetic_dataset
 
 
 def timed(fn, repeats: int, warmup: int = 1) -> dict:

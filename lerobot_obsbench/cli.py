@@ -41,8 +41,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
 def cmd_preset(args: argparse.Namespace) -> int:
     from lerobot_obsbench.presets import preset_args
 
-    print(" ".join([f"--policy.type={args.policy}", f"--policy.obs_space={args.obs_space}",
-                    *preset_args(args.preset, args.policy, args.obs_space)]))
+    print(" ".join(preset_args(args.preset, args.policy, args.obs_space)))
     return 0
 
 
@@ -62,7 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cameras", nargs="*", default=[], help="camera names (default: every camera found)")
     p.set_defaults(func=cmd_validate)
 
-    p = sub.add_parser("preset", help="print the --policy.* flags of a named preset for lerobot-train")
+    p = sub.add_parser("preset", help="print the --policy.* overrides of a named preset, to paste into lerobot-train")
     p.add_argument("--preset", default="cpu", choices=("paper", "cpu", "tiny"))
     p.add_argument("--policy", default="obs_act", choices=("obs_act", "obs_diffusion"))
     p.add_argument("--obs-space", default="pointcloud", choices=OBS_SPACES)

@@ -28,13 +28,13 @@ from pathlib import Path
 import torch
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "scripts"))
+sys.path.insert(0, str(ROOT))
 TRAIN_EPISODES, TEST_EPISODES = 30, 6
 WORKSPACE = "[-0.5,0.5,-0.5,0.5,0.005,0.5]"
 
 
 def make_dataset(out: Path) -> Path:
-    from make_synthetic_dataset import write_dataset
+    from scripts.make_synthetic_dataset import write_dataset
 
     done = out / "meta" / "info.json"
     if done.is_file():

@@ -3,26 +3,13 @@ stock LeRobot only (it stands for "someone else's recording code")."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import pytest
 
 import lerobot_obsbench  # noqa: F401  (registers obs_act / obs_diffusion, as LeRobot's plugin discovery does)
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _load_synthetic():
-    spec = importlib.util.spec_from_file_location("make_synthetic_dataset", ROOT / "scripts" / "make_synthetic_dataset.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-synthetic = _load_synthetic()
+from scripts import make_synthetic_dataset as synthetic
 
 
 @pytest.fixture(scope="session")

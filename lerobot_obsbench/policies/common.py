@@ -26,7 +26,9 @@ DEFAULT_ENCODER = {"rgb": "resnet50", "depth": "resnet50", "rgbd": "resnet50", "
 
 @dataclass
 class ObservationConfig:
-    """Observation fields shared by obs_act and obs_diffusion (mixed into their LeRobot configs)."""
+    """Observation fields shared by obs_act and obs_diffusion, mixed in before their LeRobot config
+    (`class ObsACTConfig(ObservationConfig, ACTConfig)`), so its methods take precedence: config-time checks,
+    dataset feature resolution, and the paper's AdamW + OneCycle training presets."""
 
     # Observation space the policy sees: rgb, depth, rgbd, pointmap or pointcloud. The one field to change
     # when comparing spaces; the dataset stays the same.
@@ -64,6 +66,20 @@ class ObservationConfig:
     scheduler_pct_start: float = 0.15
     scheduler_div_factor: float = 100.0
     scheduler_final_div_factor: float = 1000.0
+
+    def __post_init__(self):
+        super().__post_init__()  # the LeRobot config this is mixed into (ACTConfig / DiffusionConfig)
+        self.validate_observation_fields()
+
+    def validate_features(self) -> None:
+        self.resolve_observation_features()
+
+    def get_optimizer_preset(self) -> AdamWConfig:
+        return AdamWConfig(lr=self.optimizer_lr, weight_decay=self.optimizer_weight_decay)
+
+    def get_scheduler_preset(self) -> OneCycleSchedulerConfig:
+        return OneCycleSchedulerConfig(pct_start=self.scheduler_pct_start, div_factor=self.scheduler_div_factor,
+                                       final_div_factor=self.scheduler_final_div_factor)
 
     def validate_observation_fields(self) -> None:
         """Config-time checks: fail before any data is read."""
@@ -104,13 +120,6 @@ class ObservationConfig:
 
     def observation_keys(self) -> list[str]:
         return schema.sensor_keys(self.obs_space, self.cameras)
-
-    def onecycle_optimizer(self) -> AdamWConfig:
-        return AdamWConfig(lr=self.optimizer_lr, weight_decay=self.optimizer_weight_decay)
-
-    def onecycle_scheduler(self) -> OneCycleSchedulerConfig:
-        return OneCycleSchedulerConfig(pct_start=self.scheduler_pct_start, div_factor=self.scheduler_div_factor,
-                                       final_div_factor=self.scheduler_final_div_factor)
 
 
 @LRSchedulerConfig.register_subclass("onecycle")

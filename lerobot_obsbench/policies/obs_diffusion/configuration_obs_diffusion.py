@@ -25,16 +25,3 @@ class ObsDiffusionConfig(ObservationConfig, DiffusionConfig):
     optimizer_lr: float = 1e-4
     # Local runs must not require --policy.repo_id.
     push_to_hub: bool = False
-
-    def __post_init__(self):
-        super().__post_init__()
-        self.validate_observation_fields()
-
-    def validate_features(self) -> None:
-        self.resolve_observation_features()
-
-    def get_optimizer_preset(self):
-        return self.onecycle_optimizer()
-
-    def get_scheduler_preset(self):
-        return self.onecycle_scheduler()
