@@ -79,3 +79,12 @@ def _failing_import(name, real_import):
         return real_import(module, *args, **kwargs)
 
     return fake
+
+
+def test_forked_dataloader_workers_use_the_fast_format(tiny_dataset):
+    """lerobot-train loads with worker processes: the registered formatter must work there too."""
+    ds = LeRobotDataset("local/test", root=tiny_dataset, delta_timestamps=DELTAS)
+    serial = next(iter(torch.utils.data.DataLoader(ds, batch_size=8, num_workers=0)))
+    workers = next(iter(torch.utils.data.DataLoader(ds, batch_size=8, num_workers=2,
+                                                    multiprocessing_context="fork")))
+    assert_same_sample(serial, workers)
