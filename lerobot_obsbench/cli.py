@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from lerobot_obsbench.datasets.schema import OBS_SPACES, SchemaError, validate_features
 
@@ -45,6 +46,45 @@ def cmd_preset(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_demos(args: argparse.Namespace) -> int:
+    from lerobot_obsbench.datasets.recording import record_demos
+
+    info = record_demos(args.task, args.episodes, args.out, image_size=args.image_size, cameras=args.cameras,
+                        seed_start=args.seed_start)
+    print(f"{args.out}: {len(info['seeds'])} episodes of {args.task}; expert success rate "
+          f"{info['expert_success_rate']:.0%} over {info['attempts']} attempts (seeds {info['seeds'][0]}..)")
+    return 0
+
+
+def cmd_doctor(args: argparse.Namespace) -> int:
+    """Plain-words check of the simulator set-up: rendering, and which tasks run here."""
+    import time
+
+    from lerobot_obsbench.envs.maniskill import ObsBenchEnv, RenderingError
+    from lerobot_obsbench.envs.tasks import TASKS, asset_help, missing_assets
+
+    problems = 0
+    try:
+        start = time.time()
+        env = ObsBenchEnv("PickCube-v1", image_size=32, asset_dir=args.asset_dir)
+        env.reset(seed=0)
+        frame = env.render()
+        env.close()
+        print(f"ok      rendering works (PickCube-v1 made, reset and rendered {frame.shape} in "
+              f"{time.time() - start:.1f} s)")
+    except RenderingError as err:
+        print(f"FAILED  rendering: {err}")
+        return 1
+    for name, spec in TASKS.items():
+        missing = missing_assets(spec)
+        if missing:
+            problems += 1
+            print(f"assets  {name}: " + asset_help(spec, args.asset_dir).replace("\n", "\n        "))
+        else:
+            print(f"ok      {name} runs offline")
+    return 0 if problems == 0 else 2
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="obsbench", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -60,6 +100,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--obs-space", default="all", choices=("all", *OBS_SPACES))
     p.add_argument("--cameras", nargs="*", default=[], help="camera names (default: every camera found)")
     p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("demos", help="record successful scripted-expert demonstrations into a LeRobotDataset "
+                                      "(resumable: rerun the same command after an interruption)")
+    p.add_argument("--task", required=True)
+    p.add_argument("--episodes", type=int, required=True)
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--image-size", type=int, default=128)
+    p.add_argument("--cameras", nargs="+", default=["base_camera"])
+    p.add_argument("--seed-start", type=int, default=100_000, help="first demonstration seed (>= 100000; "
+                   "lower seeds are reserved for evaluation)")
+    p.set_defaults(func=cmd_demos)
+
+    p = sub.add_parser("doctor", help="check simulator rendering and which tasks can run on this machine")
+    p.add_argument("--asset-dir", default=None, help="ManiSkill asset directory (MS_ASSET_DIR)")
+    p.set_defaults(func=cmd_doctor)
 
     p = sub.add_parser("preset", help="print the --policy.* overrides of a named preset, to paste into lerobot-train")
     p.add_argument("--preset", default="cpu", choices=("paper", "cpu", "tiny"))

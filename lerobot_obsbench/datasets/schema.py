@@ -144,3 +144,48 @@ def validate_features(features: Mapping[str, object], obs_space: str,
             "--policy.cameras accordingly."
         )
     return list(cameras)
+
+
+# ---- the env <-> policy passthrough (DESIGN §10) ----------------------------------------------------------
+# Stock lerobot-eval's `preprocess_observation` keeps only `pixels`, `agent_pos`, `environment_state` and the
+# nested `robot_state` dict; the OBSBench env therefore sends depth, intrinsics and cam2world inside
+# `robot_state` under their schema names without the "observation." prefix.
+ENV_PASSTHROUGH_KEY = "observation.robot_state"
+
+
+def frame_to_env_observation(frame: Mapping[str, object]) -> dict:
+    """Schema-keyed frame -> the env observation dict lerobot-eval understands."""
+    out: dict = {"pixels": {}, "robot_state": {}}
+    for key, value in frame.items():
+        name = key.removeprefix("observation.")
+        if key.startswith(IMAGE_PREFIX):
+            out["pixels"][key.removeprefix(IMAGE_PREFIX)] = value
+        elif key == STATE_KEY:
+            out["agent_pos"] = value
+        elif key == ENV_STATE_KEY:
+            out["environment_state"] = value
+        else:
+            out["robot_state"][name] = value
+    return out
+
+
+def env_observation_to_frame(obs: Mapping[str, object]) -> dict:
+    """Inverse of `frame_to_env_observation` (e.g. to record what an env returned)."""
+    frame = {IMAGE_PREFIX + cam: img for cam, img in obs.get("pixels", {}).items()}
+    if "agent_pos" in obs:
+        frame[STATE_KEY] = obs["agent_pos"]
+    if "environment_state" in obs:
+        frame[ENV_STATE_KEY] = obs["environment_state"]
+    frame.update({"observation." + name: v for name, v in obs.get("robot_state", {}).items()})
+    return frame
+
+
+def unpack_passthrough(batch: dict) -> dict:
+    """Policy side: move `observation.robot_state` entries (after lerobot-eval's preprocessing) to their
+    schema keys. Batches without the passthrough (training) are returned unchanged."""
+    nested = batch.get(ENV_PASSTHROUGH_KEY)
+    if not isinstance(nested, Mapping):
+        return batch
+    out = {k: v for k, v in batch.items() if k != ENV_PASSTHROUGH_KEY}
+    out.update({"observation." + name: v for name, v in nested.items()})
+    return out

@@ -167,6 +167,25 @@ class StateDenormalizer(nn.Module):
         return state * self.scale + self.loc
 
 
+class EnvObservationMixin:
+    """Lets stock lerobot-eval drive the policy: unpacks the env's `observation.robot_state` passthrough
+    (depth, intrinsics, cam2world; see `schema.unpack_passthrough`) onto the policy's device before LeRobot's
+    own `select_action` / `predict_action_chunk` run."""
+
+    def _unpack(self, batch: dict) -> dict:
+        unpacked = schema.unpack_passthrough(batch)
+        if unpacked is batch:
+            return batch
+        device = torch.device(self.config.device) if self.config.device else None
+        return {k: v.to(device) if isinstance(v, Tensor) and device else v for k, v in unpacked.items()}
+
+    def select_action(self, batch: dict, *args, **kwargs) -> Tensor:
+        return super().select_action(self._unpack(batch), *args, **kwargs)
+
+    def predict_action_chunk(self, batch: dict, *args, **kwargs) -> Tensor:
+        return super().predict_action_chunk(self._unpack(batch), *args, **kwargs)
+
+
 class ObservationEncoder(nn.Module):
     """ObservationAdapter + registry encoder: sensor batch -> tokens/pos (ACT) or a feature vector (DP)."""
 

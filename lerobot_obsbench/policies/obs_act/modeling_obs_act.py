@@ -9,7 +9,7 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 from torch import Tensor
 
-from lerobot_obsbench.policies.common import ObservationEncoder
+from lerobot_obsbench.policies.common import EnvObservationMixin, ObservationEncoder
 from lerobot_obsbench.policies.obs_act.configuration_obs_act import ObsACTConfig
 
 
@@ -71,7 +71,7 @@ class ObsACT(ACT):
         return self.action_head(decoder_out.transpose(0, 1)), (mu, log_sigma_x2)
 
 
-class ObsACTPolicy(ACTPolicy):
+class ObsACTPolicy(EnvObservationMixin, ACTPolicy):
     """ACT policy (loss, action queue, temporal ensembling from LeRobot) over any observation space."""
 
     config_class = ObsACTConfig

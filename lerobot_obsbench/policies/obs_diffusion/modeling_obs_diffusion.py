@@ -16,7 +16,7 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.utils.constants import OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 from torch import Tensor, nn
 
-from lerobot_obsbench.policies.common import ObservationEncoder
+from lerobot_obsbench.policies.common import EnvObservationMixin, ObservationEncoder
 from lerobot_obsbench.policies.obs_diffusion.configuration_obs_diffusion import ObsDiffusionConfig
 
 
@@ -62,7 +62,7 @@ class ObsDiffusionModel(DiffusionModel):
         return super().compute_loss({OBS_IMAGES: batch[self.observation.input_keys[0]], **batch})
 
 
-class ObsDiffusionPolicy(DiffusionPolicy):
+class ObsDiffusionPolicy(EnvObservationMixin, DiffusionPolicy):
     """Diffusion policy (queues, inference loop from LeRobot) over any observation space."""
 
     config_class = ObsDiffusionConfig

@@ -1,0 +1,159 @@
+"""Scripted demonstrations -> a LeRobotDataset in the OBSBench schema, resumable after a kill.
+
+Each attempted episode is simulated, and successful ones are written as one compressed `.npz` file in
+`OUT/.episodes/` (atomically: written under a temporary name, then renamed); failed attempts are logged in
+`OUT/.episodes/attempts.jsonl`. A rerun skips every seed already attempted, so a killed run loses at most the
+episode in flight and never repeats one. Once N episodes exist, the LeRobotDataset is (re)assembled from the
+episode files in seed order, then the staging files are removed; a kill during assembly just redoes it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from lerobot_obsbench.datasets import schema
+from lerobot_obsbench.envs.tasks import DEMO_SEED_START, task_spec
+
+STAGING = ".episodes"
+SIDECAR = "obsbench_demos.json"
+DATASET_ENTRIES = ("meta", "data", "videos", "images", ".assembling")
+
+
+def rollout(env, expert_cls, seed: int) -> tuple[bool, dict[str, np.ndarray]]:
+    """One expert episode; returns (success, per-key stacked frames incl. `action`)."""
+    env.reset(seed=seed)
+    expert = expert_cls(env)
+    frames: list[dict[str, np.ndarray]] = []
+    success = False
+    while True:
+        obs = env.schema_frame(env.raw_observation())
+        action = expert.act()
+        if action is None:  # script finished without success
+            break
+        _, _, terminated, truncated, info = env.step(action)
+        frames.append({**obs, schema.ACTION_KEY: action})
+        if info["is_success"]:
+            success = True
+            break
+        if terminated or truncated:
+            break
+    stacked = {k: np.stack([f[k] for f in frames]) for k in frames[0]} if frames else {}
+    return success, stacked
+
+
+def _attempted(staging: Path) -> dict[int, bool]:
+    done = {int(p.stem.split("_")[1]): True for p in staging.glob("seed_*.npz")}
+    log = staging / "attempts.jsonl"
+    if log.is_file():
+        for line in log.read_text().splitlines():
+            if line.strip():
+                rec = json.loads(line)
+                done.setdefault(int(rec["seed"]), bool(rec["success"]))
+    return done
+
+
+def _features(sample: dict[str, np.ndarray]) -> dict:
+    feats = {}
+    for key, value in sample.items():
+        shape = tuple(value.shape[1:])
+        if key.startswith(schema.IMAGE_PREFIX):
+            feats[key] = {"dtype": "video", "shape": shape, "names": ["height", "width", "channels"]}
+        elif key.startswith(schema.DEPTH_PREFIX):
+            feats[key] = {"dtype": "uint16", "shape": shape, "names": ["height", "width", "channels"]}
+        else:
+            feats[key] = {"dtype": "float32", "shape": shape, "names": None}
+    return feats
+
+
+def assemble(out: Path, staging: Path, seeds: list[int], task: str, fps: int, repo_id: str) -> None:
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    for name in DATASET_ENTRIES:  # leftovers of an interrupted assembly
+        path = out / name
+        if path.is_dir():
+            shutil.rmtree(path)
+    tmp_root = out / ".assembling"
+    episodes = [dict(np.load(staging / f"seed_{s}.npz")) for s in seeds]
+    ds = LeRobotDataset.create(repo_id=repo_id, fps=fps, features=_features(episodes[0]), root=tmp_root,
+                               robot_type="panda", use_videos=True)
+    description = task_spec(task).description
+    for ep in tqdm(episodes, desc="writing dataset", unit="ep"):
+        for t in range(len(ep[schema.ACTION_KEY])):
+            ds.add_frame({**{k: v[t] for k, v in ep.items()}, "task": description})
+        ds.save_episode()
+    ds.finalize()
+    for entry in tmp_root.iterdir():
+        entry.rename(out / entry.name)
+    tmp_root.rmdir()
+
+
+def record_demos(task: str, episodes: int, out: Path, image_size: int = 128, cameras=("base_camera",),
+                 seed_start: int = DEMO_SEED_START, max_attempts: int | None = None,
+                 repo_id: str | None = None, keep_staging: bool = False) -> dict:
+    """Record `episodes` successful expert demonstrations of `task` into `out` (resumable)."""
+    from lerobot_obsbench.envs.experts import EXPERTS, make_expert
+    from lerobot_obsbench.envs.maniskill import ObsBenchEnv
+
+    spec = task_spec(task)
+    if task not in EXPERTS:
+        make_expert(task, None)  # raises the explanatory NotImplementedError
+    if seed_start < DEMO_SEED_START:
+        raise ValueError(f"demonstration seeds must start at >= {DEMO_SEED_START} (below are evaluation seeds)")
+    out = Path(out)
+    sidecar = out / SIDECAR
+    if sidecar.is_file() and (out / "meta" / "info.json").is_file():
+        info = json.loads(sidecar.read_text())
+        if info["task"] == task and len(info["seeds"]) == episodes:
+            print(f"{out}: {episodes} {task} demonstrations already recorded")
+            return info
+        raise FileExistsError(f"{out} already holds a dataset ({info['task']}, {len(info['seeds'])} episodes); "
+                              "choose another --out or delete it.")
+    staging = out / STAGING
+    staging.mkdir(parents=True, exist_ok=True)
+    attempted = _attempted(staging)
+    successes = sorted(s for s, ok in attempted.items() if ok)
+    env = ObsBenchEnv(task, cameras=cameras, image_size=image_size)
+    max_attempts = max_attempts or 5 * episodes
+    seed = seed_start
+    start = time.time()
+    bar = tqdm(total=episodes, initial=min(len(successes), episodes), desc=f"{task} demos", unit="ep")
+    try:
+        while len(successes) < episodes:
+            if seed - seed_start >= max_attempts:
+                raise RuntimeError(f"only {len(successes)}/{episodes} successes after {max_attempts} attempts")
+            if seed in attempted:
+                seed += 1
+                continue
+            ok, frames = rollout(env, EXPERTS[task], seed)
+            if ok:
+                tmp = staging / f"seed_{seed}.tmp.npz"
+                np.savez_compressed(tmp, **frames)
+                os.replace(tmp, staging / f"seed_{seed}.npz")
+                successes.append(seed)
+                bar.update(1)
+            with open(staging / "attempts.jsonl", "a") as log:
+                log.write(json.dumps({"seed": seed, "success": ok, "steps": len(frames.get("action", []))}) + "\n")
+            attempted[seed] = ok
+            tried = len(attempted)
+            bar.set_postfix(success=f"{len([s for s in attempted.values() if s])}/{tried}",
+                            ep_per_min=f"{60 * bar.n / max(time.time() - start, 1e-6):.1f}")
+            seed += 1
+    finally:
+        bar.close()
+        env.close()
+    seeds = sorted(successes)[:episodes]
+    assemble(out, staging, seeds, task, fps=20, repo_id=repo_id or f"local/obsbench_{task}")
+    tried = len(attempted)
+    info = {"task": task, "seeds": seeds, "expert_success_rate": round(len(successes) / tried, 4),
+            "attempts": tried, "image_size": image_size, "cameras": list(cameras), "seed_start": seed_start}
+    sidecar.write_text(json.dumps(info, indent=2) + "\n")
+    if not keep_staging:
+        shutil.rmtree(staging)
+    return info

@@ -1,0 +1,18 @@
+"""OBSBench ManiSkill3 tasks: `--env.type=obsbench` and gymnasium ids `obsbench/<task>`.
+
+Importing this package is cheap: ManiSkill itself is imported only when an env is made.
+"""
+
+import gymnasium as gym
+
+from lerobot_obsbench.envs.configuration import ObsBenchEnvConfig
+from lerobot_obsbench.envs.tasks import TASKS, TaskError, eval_seeds, task_spec
+
+for _name in TASKS:
+    if f"obsbench/{_name}" not in gym.registry:
+        # max_episode_steps here only declares the default; ObsBenchEnv passes the configured budget to
+        # ManiSkill, and gym.make's TimeLimit (read by lerobot-eval as _max_episode_steps) follows the kwarg.
+        gym.register(id=f"obsbench/{_name}", entry_point="lerobot_obsbench.envs.maniskill:make_obsbench_env",
+                     kwargs={"task": _name}, max_episode_steps=TASKS[_name].max_steps)
+
+__all__ = ["ObsBenchEnvConfig", "TASKS", "TaskError", "eval_seeds", "task_spec"]

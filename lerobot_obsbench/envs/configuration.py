@@ -1,0 +1,69 @@
+"""`--env.type=obsbench`: the OBSBench ManiSkill3 tasks as a LeRobot EnvConfig."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from lerobot.configs.types import FeatureType, PolicyFeature
+from lerobot.envs.configs import EnvConfig
+
+from lerobot_obsbench.envs.maniskill import CONTROL_MODES, STATE_DIM
+from lerobot_obsbench.envs.tasks import task_spec
+
+ACTION_DIMS = {"pd_ee_delta_pose": 7, "pd_joint_pos": 8}
+GOAL_DIMS = {"goal_pos": 3}
+
+
+@EnvConfig.register_subclass("obsbench")
+@dataclass
+class ObsBenchEnvConfig(EnvConfig):
+    """ManiSkill3 task returning the OBSBench sensor frame (rgb, uint16 depth, K, cam2world, state, goal)."""
+
+    # Task name (`obsbench doctor` lists them): PickCube-v1, StackCube-v1, PegInsertionSide-v1, PushCube-v1,
+    # PullCube-v1, LiftPegUpright-v1, PlugCharger-v1, TurnFaucet-v1 (needs downloaded assets).
+    task: str = "PickCube-v1"
+    # Control frequency of ManiSkill's tabletop tasks.
+    fps: int = 20
+    # Cameras to render (the paper: the single front `base_camera`).
+    cameras: list[str] = field(default_factory=lambda: ["base_camera"])
+    # Square image size of every camera (the paper: 128).
+    image_size: int = 128
+    # Robot controller: pd_ee_delta_pose (paper; 7-D action) or pd_joint_pos (8-D).
+    control_mode: str = "pd_ee_delta_pose"
+    # Steps per episode; None = ManiSkill's budget for the task.
+    episode_length: int | None = None
+    # First seed used when reset() is called without one (then +1 per episode); None = unseeded.
+    seed: int | None = None
+    # Directory with ManiSkill's downloaded assets (MS_ASSET_DIR), needed by TurnFaucet-v1 only.
+    asset_dir: str | None = None
+
+    def __post_init__(self):
+        spec = task_spec(self.task)
+        if self.control_mode not in CONTROL_MODES:
+            raise ValueError(f"control_mode must be one of {CONTROL_MODES}; got {self.control_mode!r}")
+        size = (self.image_size, self.image_size, 3)
+        self.features = {"action": PolicyFeature(FeatureType.ACTION, (ACTION_DIMS[self.control_mode],)),
+                         "agent_pos": PolicyFeature(FeatureType.STATE, (STATE_DIM,))}
+        self.features_map = {"action": "action", "agent_pos": "observation.state"}
+        for cam in self.cameras:
+            self.features[f"pixels/{cam}"] = PolicyFeature(FeatureType.VISUAL, size)
+            self.features_map[f"pixels/{cam}"] = f"observation.images.{cam}"
+        if spec.goal_keys:
+            dim = sum(GOAL_DIMS[k] for k in spec.goal_keys)
+            self.features["environment_state"] = PolicyFeature(FeatureType.ENV, (dim,))
+            self.features_map["environment_state"] = "observation.environment_state"
+
+    @property
+    def package_name(self) -> str:
+        return "lerobot_obsbench.envs"
+
+    @property
+    def gym_id(self) -> str:
+        return f"obsbench/{self.task}"
+
+    @property
+    def gym_kwargs(self) -> dict:
+        steps = self.episode_length or task_spec(self.task).max_steps
+        # `max_episode_steps` is gym.make's TimeLimit (lerobot-eval reads it); `episode_length` reaches ManiSkill.
+        return {"cameras": list(self.cameras), "image_size": self.image_size, "control_mode": self.control_mode,
+                "asset_dir": self.asset_dir, "seed": self.seed, "episode_length": steps, "max_episode_steps": steps}

@@ -1,0 +1,193 @@
+"""Scripted experts for the OBSBench ManiSkill tasks, driving the `pd_ee_delta_pose` controller.
+
+ManiSkill's own motion-planning solutions need mplib, which cannot run next to LeRobot's numpy >= 2 (DESIGN §7),
+so demonstrations come from these privileged (they read object poses from the simulator) waypoint followers:
+a proportional controller moves the tool-centre point (TCP) and its yaw towards the current waypoint; a phase
+ends when its waypoint is reached (or after a step budget), then the next begins.
+
+Action layout (pd_ee_delta_pose): [dx, dy, dz] in [-1, 1] -> ±0.1 m, [drx, dry, drz] in [-1, 1] -> ±0.1 rad
+about the TCP's own axes (the TCP points down, so +drz turns the gripper clockwise seen from above), gripper
++1 open / -1 closed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+POS_SCALE = 0.1
+ROT_SCALE = 0.1
+OPEN, CLOSED = 1.0, -1.0
+
+
+def _np(x) -> np.ndarray:
+    return x.detach().cpu().numpy().reshape(-1) if hasattr(x, "detach") else np.asarray(x).reshape(-1)
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    w, x, y, z = q / np.linalg.norm(q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def yaw_of(q: np.ndarray) -> float:
+    """Heading of a frame's x axis in the world xy plane."""
+    R = quat_to_matrix(q)
+    return float(np.arctan2(R[1, 0], R[0, 0]))
+
+
+def wrap(angle: float) -> float:
+    return float((angle + np.pi) % (2 * np.pi) - np.pi)
+
+
+def grasp_yaw(tcp_yaw: float, object_yaw: float, symmetry: float = np.pi / 2) -> float:
+    """The object-aligned gripper yaw (object yaw + k * symmetry) closest to the current gripper yaw."""
+    k = np.round(wrap(tcp_yaw - object_yaw) / symmetry)
+    return wrap(object_yaw + k * symmetry)
+
+
+@dataclass
+class Phase:
+    """Move the TCP to `target(env)` with `gripper`, yaw `yaw(env)` (None: keep), until within `tol` metres
+    (and 0.05 rad) or `max_steps` have passed. `min_steps` holds the phase (e.g. to let the gripper close)."""
+
+    name: str
+    target: Callable
+    gripper: float
+    yaw: Callable | None = None
+    tol: float = 0.01
+    max_steps: int = 40
+    min_steps: int = 0
+
+
+class WaypointExpert:
+    """Runs a list of phases; `act(env)` returns the next 7-D action (or None when the script is finished)."""
+
+    gain = 2.0
+
+    def __init__(self, env):
+        self.env = env.unwrapped_ms if hasattr(env, "unwrapped_ms") else env
+        self.phases = self.plan()
+        self.index = 0
+        self.steps_in_phase = 0
+
+    def plan(self) -> list[Phase]:
+        raise NotImplementedError
+
+    def tcp(self) -> tuple[np.ndarray, float]:
+        pose = self.env.agent.tcp.pose
+        return _np(pose.p), yaw_of(_np(pose.q))
+
+    def act(self) -> np.ndarray | None:
+        while self.index < len(self.phases):
+            phase = self.phases[self.index]
+            pos, yaw = self.tcp()
+            target = np.asarray(phase.target(self), dtype=np.float64)
+            err = target - pos
+            yaw_err = 0.0 if phase.yaw is None else wrap(phase.yaw(self) - yaw)
+            reached = np.linalg.norm(err) < phase.tol and abs(yaw_err) < 0.05
+            if (reached and self.steps_in_phase >= phase.min_steps) or self.steps_in_phase >= phase.max_steps:
+                self.index += 1
+                self.steps_in_phase = 0
+                continue
+            self.steps_in_phase += 1
+            action = np.zeros(7)
+            action[:3] = np.clip(self.gain * err / POS_SCALE, -1, 1)
+            action[5] = np.clip(-yaw_err / ROT_SCALE, -1, 1)  # TCP z points down: world yaw = -drz
+            action[6] = phase.gripper
+            return action.astype(np.float32)
+        return None
+
+    # helpers for plans
+    def pose_of(self, actor) -> tuple[np.ndarray, float]:
+        return _np(actor.pose.p), yaw_of(_np(actor.pose.q))
+
+
+def _above(p: np.ndarray, dz: float) -> np.ndarray:
+    return p + np.array([0.0, 0.0, dz])
+
+
+class PickCubeExpert(WaypointExpert):
+    def plan(self):
+        cube = lambda s: s.pose_of(s.env.cube)[0]  # noqa: E731
+        yaw = lambda s: grasp_yaw(s.tcp()[1], s.pose_of(s.env.cube)[1])  # noqa: E731
+        goal = lambda s: _np(s.env.goal_site.pose.p)  # noqa: E731
+        return [
+            Phase("pre-grasp", lambda s: _above(cube(s), 0.05), OPEN, yaw),
+            Phase("descend", cube, OPEN, yaw, tol=0.005),
+            Phase("grasp", cube, CLOSED, yaw, tol=1.0, min_steps=4, max_steps=4),
+            Phase("to goal", goal, CLOSED, tol=0.005, max_steps=60),
+            Phase("hold", goal, CLOSED, tol=1.0, min_steps=30, max_steps=30),
+        ]
+
+
+class StackCubeExpert(WaypointExpert):
+    def plan(self):
+        cube_a = lambda s: s.pose_of(s.env.cubeA)[0]  # noqa: E731
+        yaw = lambda s: grasp_yaw(s.tcp()[1], s.pose_of(s.env.cubeA)[1])  # noqa: E731
+        half = float(_np(self.env.cube_half_size)[0]) if hasattr(self.env, "cube_half_size") else 0.02
+        on_b = lambda s: _above(s.pose_of(s.env.cubeB)[0], 2 * half)  # noqa: E731
+        return [
+            Phase("pre-grasp", lambda s: _above(cube_a(s), 0.05), OPEN, yaw),
+            Phase("descend", cube_a, OPEN, yaw, tol=0.005),
+            Phase("grasp", cube_a, CLOSED, yaw, tol=1.0, min_steps=4, max_steps=4),
+            Phase("lift", lambda s: _above(cube_a(s), 0.0) * [1, 1, 0] + [0, 0, 0.1], CLOSED),
+            Phase("above B", lambda s: _above(on_b(s), 0.04), CLOSED),
+            Phase("lower", lambda s: _above(on_b(s), 0.005), CLOSED, tol=0.005),
+            Phase("release", lambda s: _above(on_b(s), 0.005), OPEN, tol=1.0, min_steps=5, max_steps=5),
+            Phase("retreat", lambda s: _above(on_b(s), 0.08), OPEN, max_steps=30),
+        ]
+
+
+class PushCubeExpert(WaypointExpert):
+    """Push along +x: get behind the cube (closed gripper, low), then push until the cube is on the goal."""
+
+    def plan(self):
+        cube = lambda s: s.pose_of(s.env.obj)[0]  # noqa: E731
+        goal = lambda s: _np(s.env.goal_region.pose.p)  # noqa: E731
+        half = 0.02
+        behind = lambda s: np.array([cube(s)[0] - half - 0.03, goal(s)[1], 0.02])  # noqa: E731
+        return [
+            Phase("above behind", lambda s: _above(behind(s), 0.08), CLOSED),
+            Phase("down behind", behind, CLOSED, tol=0.005),
+            Phase("push", lambda s: np.array([goal(s)[0] - half + 0.005, goal(s)[1], 0.02]), CLOSED, tol=0.005,
+                  max_steps=60),
+        ]
+
+
+class PullCubeExpert(WaypointExpert):
+    """Pull along -x: reach over the cube, lower in front of it, pull back to the goal."""
+
+    def plan(self):
+        cube = lambda s: s.pose_of(s.env.obj)[0]  # noqa: E731
+        goal = lambda s: _np(s.env.goal_region.pose.p)  # noqa: E731
+        half = 0.02
+        front = lambda s: np.array([cube(s)[0] + half + 0.03, cube(s)[1], 0.02])  # noqa: E731
+        return [
+            Phase("above front", lambda s: _above(front(s), 0.08), CLOSED),
+            Phase("down front", front, CLOSED, tol=0.005),
+            Phase("pull", lambda s: np.array([goal(s)[0] + half + 0.01, goal(s)[1], 0.02]), CLOSED, tol=0.005,
+                  max_steps=60),
+        ]
+
+
+EXPERTS: dict[str, type[WaypointExpert]] = {
+    "PickCube-v1": PickCubeExpert,
+    "StackCube-v1": StackCubeExpert,
+    "PushCube-v1": PushCubeExpert,
+    "PullCube-v1": PullCubeExpert,
+}
+
+
+def make_expert(task: str, env) -> WaypointExpert:
+    if task not in EXPERTS:
+        raise NotImplementedError(
+            f"No scripted expert for {task} yet (experts: {', '.join(EXPERTS)}). Convert official ManiSkill "
+            "demonstrations instead: obsbench import-h5 --task ... --h5 FILE.h5."
+        )
+    return EXPERTS[task](env)

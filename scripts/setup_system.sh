@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# System packages the simulator needs on a CPU-only Debian 12 (bookworm) machine: SAPIEN renders through Vulkan,
+# and bookworm's own lavapipe (Mesa 22) lacks descriptorBindingPartiallyBound, so Mesa 25's lavapipe comes from
+# Debian's bookworm-backports suite, added to the machine's existing Debian apt source (its mirror is kept).
+# Idempotent; run as root (or with sudo available).
+set -euo pipefail
+
+SUDO=""
+[ "$(id -u)" -eq 0 ] || SUDO="sudo"
+SOURCES=/etc/apt/sources.list.d/debian.sources
+
+lavapipe_ok() {
+    # Mesa >= 24's lavapipe ICD installed?
+    local version
+    version=$(dpkg-query -W -f='${Version}' mesa-vulkan-drivers 2>/dev/null || true)
+    [ -n "$version" ] && dpkg --compare-versions "$version" ge 24 && dpkg-query -W libvulkan1 >/dev/null 2>&1
+}
+
+if lavapipe_ok; then
+    echo "setup_system: Mesa lavapipe $(dpkg-query -W -f='${Version}' mesa-vulkan-drivers) already installed"
+    exit 0
+fi
+
+if [ ! -f "$SOURCES" ]; then
+    echo "setup_system: $SOURCES not found. Add Debian's bookworm-backports suite to your apt sources, then run:" >&2
+    echo "  apt-get update && apt-get install -y -t bookworm-backports mesa-vulkan-drivers libvulkan1" >&2
+    exit 1
+fi
+if ! grep -q "bookworm-backports" "$SOURCES"; then
+    # Append the suite to the Suites line of the main Debian entry (the one listing bookworm-updates).
+    $SUDO sed -i '0,/^Suites:.*bookworm-updates.*$/s//& bookworm-backports/' "$SOURCES"
+fi
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -qq
+$SUDO apt-get install -y -qq -t bookworm-backports mesa-vulkan-drivers libvulkan1 >/dev/null
+echo "setup_system: installed Mesa lavapipe $(dpkg-query -W -f='${Version}' mesa-vulkan-drivers)"
