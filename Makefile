@@ -1,4 +1,5 @@
-# Every target installs what it needs into .venv first (python 3.11, lerobot 0.4.4 and this plugin).
+# Every target installs what it needs first: the simulator's Vulkan driver (apt, scripts/setup_system.sh) and
+# .venv with python 3.11, lerobot 0.4.4, mani-skill 3.0.1 and this plugin.
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 BIN := $(VENV)/bin
@@ -6,7 +7,8 @@ STAMP := $(VENV)/.installed
 
 .PHONY: install main test test-fast bench clean
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml scripts/setup_system.sh
+	bash scripts/setup_system.sh
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -e '.[test]'
