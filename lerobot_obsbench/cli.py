@@ -85,6 +85,21 @@ def cmd_doctor(args: argparse.Namespace) -> int:
     return 0 if problems == 0 else 2
 
 
+def cmd_eval(args: argparse.Namespace) -> int:
+    from lerobot_obsbench.envs.evaluate import evaluate, write_result
+
+    result = evaluate(args.policy_path, args.task, args.episodes, image_size=args.image_size,
+                      control_mode=args.control_mode, episode_length=args.episode_length, device=args.device,
+                      video_dir=args.videos, asset_dir=args.asset_dir)
+    write_result(result, args.out)
+    lo, hi = result["ci95"]
+    sub = "".join(f", {k} {v:.0%}" for k, v in result["sub_success"].items())
+    print(f"{result['task']}: success {result['successes']}/{result['episodes']} = {result['success_rate']:.1%} "
+          f"(95% CI {lo:.1%}-{hi:.1%}){sub}; mean episode length {result['episode_length_mean']}"
+          + (f"; written to {args.out}" if args.out else ""))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="obsbench", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -111,6 +126,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed-start", type=int, default=100_000, help="first demonstration seed (>= 100000; "
                    "lower seeds are reserved for evaluation)")
     p.set_defaults(func=cmd_demos)
+
+    p = sub.add_parser("eval", help="success rate of a checkpoint on the task's fixed held-out seeds 0..N-1")
+    p.add_argument("--policy.path", dest="policy_path", required=True, help="pretrained_model directory")
+    p.add_argument("--env.task", dest="task", required=True)
+    p.add_argument("--episodes", type=int, default=50)
+    p.add_argument("--env.image_size", dest="image_size", type=int, default=None,
+                   help="default: the resolution the policy was trained on")
+    p.add_argument("--env.control_mode", dest="control_mode", default="pd_ee_delta_pose")
+    p.add_argument("--env.episode_length", dest="episode_length", type=int, default=None)
+    p.add_argument("--env.asset_dir", dest="asset_dir", default=None)
+    p.add_argument("--policy.device", dest="device", default="cpu")
+    p.add_argument("--videos", type=Path, default=None, help="write one mp4 per episode here")
+    p.add_argument("--out", type=Path, default=None, help="write the JSON result here")
+    p.set_defaults(func=cmd_eval)
 
     p = sub.add_parser("doctor", help="check simulator rendering and which tasks can run on this machine")
     p.add_argument("--asset-dir", default=None, help="ManiSkill asset directory (MS_ASSET_DIR)")

@@ -60,3 +60,14 @@ def test_onecycle_schedule_follows_the_paper():
     assert lrs[0] == pytest.approx(1e-6)  # max / div_factor 100
     assert max(lrs) == pytest.approx(1e-4, rel=1e-3) and lrs.index(max(lrs)) in (14, 15)  # pct_start 0.15
     assert lrs[-1] < 1e-8 * 2  # final lr = initial / 1000
+
+
+def test_wilson_interval_against_published_values():
+    from lerobot_obsbench.stats import wilson_interval
+
+    # Wilson (1927) 95% intervals, as tabulated e.g. by Newcombe (1998), Table I
+    assert wilson_interval(0, 10) == pytest.approx((0.0, 0.2775), abs=1e-4)
+    assert wilson_interval(5, 10) == pytest.approx((0.2366, 0.7634), abs=1e-4)
+    assert wilson_interval(81, 263) == pytest.approx((0.2553, 0.3662), abs=1e-4)
+    with pytest.raises(ValueError):
+        wilson_interval(3, 2)

@@ -160,22 +160,49 @@ def test_recorded_table_is_at_world_z_zero(demos):
     assert abs(float(near_table.median())) < 2e-3
 
 
-def test_end_to_end_demos_train_eval(demos, tmp_path):
+@pytest.fixture(scope="module")
+def checkpoint(demos, tmp_path_factory) -> Path:
     from lerobot_obsbench.presets import preset_args
 
+    out = tmp_path_factory.mktemp("train")
     train = subprocess.run(
         [str(BIN / "lerobot-train"), "--policy.type=obs_act", "--policy.obs_space=pointcloud", "--policy.device=cpu",
          *preset_args("tiny", "obs_act", "pointcloud"), "--dataset.repo_id=local/demos", f"--dataset.root={demos}",
          "--batch_size=4", "--steps=4", "--save_freq=4", "--num_workers=0", "--wandb.enable=false",
-         f"--output_dir={tmp_path / 'train'}"],
+         f"--output_dir={out / 'run'}"],
         capture_output=True, text=True, env=ENV, stdin=subprocess.DEVNULL, timeout=600)
     assert train.returncode == 0, train.stderr[-3000:]
-    ckpt = tmp_path / "train" / "checkpoints" / "last" / "pretrained_model"
+    return out / "run" / "checkpoints" / "last" / "pretrained_model"
+
+
+def test_end_to_end_demos_train_stock_lerobot_eval(checkpoint, tmp_path):
     evaluation = subprocess.run(
-        [str(BIN / "lerobot-eval"), f"--policy.path={ckpt}", "--policy.device=cpu", "--env.type=obsbench",
+        [str(BIN / "lerobot-eval"), f"--policy.path={checkpoint}", "--policy.device=cpu", "--env.type=obsbench",
          "--env.task=PickCube-v1", f"--env.image_size={SIZE}", "--eval.n_episodes=2", "--eval.batch_size=1",
          f"--output_dir={tmp_path / 'eval'}"],
         capture_output=True, text=True, env=ENV, stdin=subprocess.DEVNULL, timeout=600)
     assert evaluation.returncode == 0, evaluation.stderr[-3000:]
     out = evaluation.stdout + evaluation.stderr
     assert "'pc_success'" in out and "'n_episodes': 2" in out
+
+
+def test_obsbench_eval_is_deterministic_and_complete(checkpoint, tmp_path):
+    from lerobot_obsbench.envs.evaluate import evaluate
+
+    first = evaluate(checkpoint, "PickCube-v1", episodes=2, video_dir=tmp_path / "videos")
+    second = evaluate(checkpoint, "PickCube-v1", episodes=2)
+    assert first["seeds"] == [0, 1] and first["image_size"] == SIZE
+    assert first["per_episode"] == second["per_episode"]
+    assert 0 <= first["ci95"][0] <= first["success_rate"] <= first["ci95"][1] <= 1
+    assert first["episode_length_mean"] > 0
+    assert sorted(p.name for p in (tmp_path / "videos").glob("*.mp4")) == ["PickCube-v1_seed0.mp4",
+                                                                           "PickCube-v1_seed1.mp4"]
+
+
+def test_policy_env_mismatch_is_explained(checkpoint):
+    from lerobot_obsbench.envs.evaluate import evaluate
+
+    with pytest.raises(schema.SchemaError, match=f"trained on {SIZE}x{SIZE} frames.*--env.image_size={SIZE}"):
+        evaluate(checkpoint, "PickCube-v1", episodes=1, image_size=32)
+    with pytest.raises(schema.SchemaError, match="outputs 7-D actions.*takes 8"):
+        evaluate(checkpoint, "PickCube-v1", episodes=1, control_mode="pd_joint_pos")

@@ -146,6 +146,21 @@ def validate_features(features: Mapping[str, object], obs_space: str,
     return list(cameras)
 
 
+def camera_resolution(features: Mapping[str, object], obs_space: str, cameras: list[str]) -> list[int]:
+    """(height, width) of the first camera's frames (colour, else depth), as the policy was trained on."""
+    cam = cameras[0]
+    for key in (image_key(cam), depth_key(cam)):
+        if key in features and prefix_of(key) in SPACE_SENSORS[obs_space]:
+            shape = _shape(features[key])
+            # policy features store images channel-first (3, H, W); dataset features (H, W, 3)
+            return list(shape[1:]) if shape[0] == 3 and key.startswith(IMAGE_PREFIX) and shape[-1] != 3 else list(shape[:2])
+    return []
+
+
+def prefix_of(key: str) -> str:
+    return next(p for p in SENSOR_PREFIXES if key.startswith(p))
+
+
 # ---- the env <-> policy passthrough (DESIGN §10) ----------------------------------------------------------
 # Stock lerobot-eval's `preprocess_observation` keeps only `pixels`, `agent_pos`, `environment_state` and the
 # nested `robot_state` dict; the OBSBench env therefore sends depth, intrinsics and cam2world inside

@@ -5,9 +5,9 @@ so demonstrations come from these privileged (they read object poses from the si
 a proportional controller moves the tool-centre point (TCP) and its yaw towards the current waypoint; a phase
 ends when its waypoint is reached (or after a step budget), then the next begins.
 
-Action layout (pd_ee_delta_pose): [dx, dy, dz] in [-1, 1] -> ±0.1 m, [drx, dry, drz] in [-1, 1] -> ±0.1 rad
-about the TCP's own axes (the TCP points down, so +drz turns the gripper clockwise seen from above), gripper
-+1 open / -1 closed.
+Action layout (pd_ee_delta_pose): [dx, dy, dz] in [-1, 1] -> ±0.1 m; [drx, dry, drz] in [-1, 1] -> ±0.1 rad,
+which (measured on ManiSkill 3.0.1's Panda) turns the TCP by the world-frame rotation vector -(drx, dry, drz);
+gripper +1 open / -1 closed.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 POS_SCALE = 0.1
 ROT_SCALE = 0.1
@@ -51,18 +52,33 @@ def grasp_yaw(tcp_yaw: float, object_yaw: float, symmetry: float = np.pi / 2) ->
     return wrap(object_yaw + k * symmetry)
 
 
+def top_down(yaw: float) -> np.ndarray:
+    """TCP orientation pointing straight down with its x axis at heading `yaw` (fingers close along its y)."""
+    x = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    z = np.array([0.0, 0.0, -1.0])
+    return np.stack([x, np.cross(z, x), z], axis=1)
+
+
+def pose_matrix(p: np.ndarray, R: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, p
+    return T
+
+
 @dataclass
 class Phase:
-    """Move the TCP to `target(env)` with `gripper`, yaw `yaw(env)` (None: keep), until within `tol` metres
-    (and 0.05 rad) or `max_steps` have passed. `min_steps` holds the phase (e.g. to let the gripper close)."""
+    """Move the TCP to `target(expert)` with `gripper` and orientation `rotation(expert)` (a world 3x3 matrix;
+    None keeps the current one) until within `tol` metres and 0.05 rad, or `max_steps` have passed.
+    `min_steps` holds the phase (e.g. to let the gripper close). A `gain` below 1 moves slowly."""
 
     name: str
     target: Callable
     gripper: float
-    yaw: Callable | None = None
+    rotation: Callable | None = None
     tol: float = 0.01
     max_steps: int = 40
     min_steps: int = 0
+    gain: float | None = None
 
 
 class WaypointExpert:
@@ -83,22 +99,28 @@ class WaypointExpert:
         pose = self.env.agent.tcp.pose
         return _np(pose.p), yaw_of(_np(pose.q))
 
+    def tcp_matrix(self) -> np.ndarray:
+        pose = self.env.agent.tcp.pose
+        return pose_matrix(_np(pose.p), quat_to_matrix(_np(pose.q)))
+
     def act(self) -> np.ndarray | None:
         while self.index < len(self.phases):
             phase = self.phases[self.index]
-            pos, yaw = self.tcp()
-            target = np.asarray(phase.target(self), dtype=np.float64)
-            err = target - pos
-            yaw_err = 0.0 if phase.yaw is None else wrap(phase.yaw(self) - yaw)
-            reached = np.linalg.norm(err) < phase.tol and abs(yaw_err) < 0.05
+            tcp = self.tcp_matrix()
+            err = np.asarray(phase.target(self), dtype=np.float64) - tcp[:3, 3]
+            # rotation error as a world-frame rotation vector (see the module docstring for the controller's sign)
+            rot_err = (np.zeros(3) if phase.rotation is None
+                       else Rotation.from_matrix(phase.rotation(self) @ tcp[:3, :3].T).as_rotvec())
+            reached = np.linalg.norm(err) < phase.tol and np.linalg.norm(rot_err) < 0.05
             if (reached and self.steps_in_phase >= phase.min_steps) or self.steps_in_phase >= phase.max_steps:
                 self.index += 1
                 self.steps_in_phase = 0
                 continue
             self.steps_in_phase += 1
+            gain = self.gain if phase.gain is None else phase.gain
             action = np.zeros(7)
-            action[:3] = np.clip(self.gain * err / POS_SCALE, -1, 1)
-            action[5] = np.clip(-yaw_err / ROT_SCALE, -1, 1)  # TCP z points down: world yaw = -drz
+            action[:3] = np.clip(gain * err / POS_SCALE, -1, 1)
+            action[3:6] = np.clip(-rot_err / ROT_SCALE, -1, 1)
             action[6] = phase.gripper
             return action.astype(np.float32)
         return None
@@ -106,6 +128,13 @@ class WaypointExpert:
     # helpers for plans
     def pose_of(self, actor) -> tuple[np.ndarray, float]:
         return _np(actor.pose.p), yaw_of(_np(actor.pose.q))
+
+    def matrix_of(self, pose) -> np.ndarray:
+        return pose_matrix(_np(pose.p), quat_to_matrix(_np(pose.q)))
+
+    def aligned(self, actor) -> Callable:
+        """Rotation target: top-down, yaw aligned with `actor`'s faces (closest of the 4 choices)."""
+        return lambda s: top_down(grasp_yaw(s.tcp()[1], s.pose_of(actor)[1]))
 
 
 def _above(p: np.ndarray, dz: float) -> np.ndarray:
@@ -115,7 +144,7 @@ def _above(p: np.ndarray, dz: float) -> np.ndarray:
 class PickCubeExpert(WaypointExpert):
     def plan(self):
         cube = lambda s: s.pose_of(s.env.cube)[0]  # noqa: E731
-        yaw = lambda s: grasp_yaw(s.tcp()[1], s.pose_of(s.env.cube)[1])  # noqa: E731
+        yaw = self.aligned(self.env.cube)
         goal = lambda s: _np(s.env.goal_site.pose.p)  # noqa: E731
         return [
             Phase("pre-grasp", lambda s: _above(cube(s), 0.05), OPEN, yaw),
@@ -129,7 +158,7 @@ class PickCubeExpert(WaypointExpert):
 class StackCubeExpert(WaypointExpert):
     def plan(self):
         cube_a = lambda s: s.pose_of(s.env.cubeA)[0]  # noqa: E731
-        yaw = lambda s: grasp_yaw(s.tcp()[1], s.pose_of(s.env.cubeA)[1])  # noqa: E731
+        yaw = self.aligned(self.env.cubeA)
         half = float(_np(self.env.cube_half_size)[0]) if hasattr(self.env, "cube_half_size") else 0.02
         on_b = lambda s: _above(s.pose_of(s.env.cubeB)[0], 2 * half)  # noqa: E731
         return [

@@ -42,6 +42,9 @@ class ObservationConfig:
     # Cameras to read (`observation.*.<cam>` keys). Empty: every camera of the dataset that has the keys the
     # space needs; filled in and saved with the checkpoint.
     cameras: list[str] = field(default_factory=list)
+    # (height, width) of the camera frames the policy was trained on; filled in from the dataset and saved,
+    # so evaluation can refuse an env rendering another size.
+    camera_resolution: list[int] = field(default_factory=list)
     # Frame of point coordinates (pointcloud, pointmap): world, camera (first camera) or ee (end effector,
     # from the last 7 values of observation.state: xyz + quaternion wxyz).
     frame: str = "world"
@@ -108,6 +111,7 @@ class ObservationConfig:
         sensors = {k: ft for k, ft in self.input_features.items() if schema.is_sensor_key(k)}
         if sensors or not self.cameras:
             self.cameras = schema.validate_features(self.input_features, self.obs_space, self.cameras or None)
+            self.camera_resolution = schema.camera_resolution(self.input_features, self.obs_space, self.cameras)
         self.input_features = {k: ft for k, ft in self.input_features.items() if not schema.is_sensor_key(k)}
         state = self.input_features.get(schema.STATE_KEY)
         if self.frame == "ee" and self.obs_space in ("pointcloud", "pointmap"):

@@ -1,0 +1,123 @@
+"""Success-rate evaluation of a trained policy on the fixed held-out seeds of an OBSBench task.
+
+Episode i uses seed `eval_seeds(n)[i]` (0, 1, ..., n-1) for the env and for torch's generator, so a given
+checkpoint, task and seed list always gives the same result on the same machine. The policy sees exactly
+what stock `lerobot-eval` would feed it (LeRobot's `preprocess_observation`, then the checkpoint's own
+pre/post-processors).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from lerobot_obsbench.datasets.schema import SchemaError
+from lerobot_obsbench.envs.maniskill import STATE_DIM, ObsBenchEnv
+from lerobot_obsbench.envs.tasks import eval_seeds, task_spec
+from lerobot_obsbench.stats import wilson_interval
+
+
+def load_policy(path: str | Path, device: str = "cpu"):
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+
+    config = PreTrainedConfig.from_pretrained(path)
+    config.device = device
+    policy = get_policy_class(config.type).from_pretrained(path, config=config).eval()
+    pre, post = make_pre_post_processors(policy.config, pretrained_path=str(path))
+    return policy, pre, post
+
+
+def check_compatible(config, env: ObsBenchEnv) -> None:
+    """Refuse a policy whose cameras, image size, state or action do not match the env (clear message)."""
+    problems = []
+    missing = [c for c in getattr(config, "cameras", []) if c not in env.cameras]
+    if missing:
+        problems.append(f"the policy reads cameras {config.cameras} but the env renders {env.cameras} "
+                        "(--env.cameras)")
+    resolution = list(getattr(config, "camera_resolution", []) or [])
+    if resolution and resolution != [env.image_size, env.image_size]:
+        problems.append(f"the policy was trained on {resolution[0]}x{resolution[1]} frames but the env renders "
+                        f"{env.image_size}x{env.image_size} (--env.image_size={resolution[0]})")
+    state = config.robot_state_feature
+    if state is not None and state.shape[0] != STATE_DIM:
+        problems.append(f"the policy expects observation.state of size {state.shape[0]}, the env gives {STATE_DIM}")
+    action = config.action_feature
+    if action is not None and action.shape[0] != env.action_space.shape[0]:
+        problems.append(f"the policy outputs {action.shape[0]}-D actions but the env's controller takes "
+                        f"{env.action_space.shape[0]} (--env.control_mode)")
+    if problems:
+        raise SchemaError("Policy and env do not match: " + "; ".join(problems) + ".")
+
+
+def _batched(obs):
+    if isinstance(obs, dict):
+        return {k: _batched(v) for k, v in obs.items()}
+    return np.expand_dims(obs, 0)
+
+
+def evaluate(policy_path: str | Path, task: str, episodes: int, image_size: int | None = None,
+             control_mode: str = "pd_ee_delta_pose", episode_length: int | None = None, device: str = "cpu",
+             video_dir: Path | None = None, asset_dir: str | None = None) -> dict:
+    from lerobot.envs.utils import preprocess_observation
+
+    spec = task_spec(task)
+    policy, pre, post = load_policy(policy_path, device)
+    cameras = getattr(policy.config, "cameras", None) or ["base_camera"]
+    resolution = getattr(policy.config, "camera_resolution", None)
+    size = image_size or (resolution[0] if resolution else 128)
+    steps = episode_length or spec.max_steps
+    env = ObsBenchEnv(task, cameras=cameras, image_size=size, control_mode=control_mode, asset_dir=asset_dir,
+                      episode_length=steps)
+    check_compatible(policy.config, env)
+    records = []
+    start = time.time()
+    bar = tqdm(eval_seeds(episodes), desc=f"eval {task}", unit="ep")
+    for seed in bar:
+        torch.manual_seed(seed)
+        obs, info = env.reset(seed=seed)
+        policy.reset()
+        frames = [env.render()] if video_dir else None
+        length = 0
+        for length in range(1, steps + 1):
+            batch = pre(preprocess_observation(_batched(obs)))
+            with torch.inference_mode():
+                action = post(policy.select_action(batch))
+            obs, _, terminated, truncated, info = env.step(action[0].cpu().numpy())
+            if frames is not None:
+                frames.append(env.render())
+            if info["is_success"] or terminated or truncated:
+                break
+        records.append({"seed": seed, "success": bool(info["is_success"]), "length": length,
+                        **{k.removeprefix("sub_success/"): bool(v) for k, v in info.items() if k.startswith("sub_success/")}})
+        if frames is not None:
+            from lerobot.utils.io_utils import write_video
+
+            video_dir.mkdir(parents=True, exist_ok=True)
+            write_video(str(video_dir / f"{task}_seed{seed}.mp4"), np.stack(frames), fps=20)
+        wins = sum(r["success"] for r in records)
+        bar.set_postfix(success=f"{wins}/{len(records)}")
+    env.close()
+    successes = sum(r["success"] for r in records)
+    low, high = wilson_interval(successes, len(records))
+    sub = {name: round(sum(r[name] for r in records) / len(records), 4) for name in spec.sub_success}
+    return {
+        "task": task, "policy_path": str(policy_path), "obs_space": getattr(policy.config, "obs_space", None),
+        "policy_type": policy.config.type, "episodes": len(records), "seeds": [r["seed"] for r in records],
+        "successes": successes, "success_rate": round(successes / len(records), 4),
+        "ci95": [round(low, 4), round(high, 4)], "sub_success": sub,
+        "episode_length_mean": round(float(np.mean([r["length"] for r in records])), 2),
+        "per_episode": records, "image_size": size, "control_mode": control_mode,
+        "wall_s": round(time.time() - start, 1),
+    }
+
+
+def write_result(result: dict, out: Path | None) -> None:
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(result, indent=2) + "\n")
