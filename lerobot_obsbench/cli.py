@@ -85,6 +85,15 @@ def cmd_doctor(args: argparse.Namespace) -> int:
     return 0 if problems == 0 else 2
 
 
+def cmd_import(args: argparse.Namespace) -> int:
+    from lerobot_obsbench.datasets.maniskill_import import import_trajectories
+
+    info = import_trajectories(args.h5, args.out, image_size=args.image_size, cameras=args.cameras,
+                               max_episodes=args.max_episodes, only_success=not args.all)
+    print(f"{args.out}: {len(info['episode_ids'])} {info['task']} episodes imported from {args.h5}")
+    return 0
+
+
 def cmd_eval(args: argparse.Namespace) -> int:
     from lerobot_obsbench.envs.evaluate import evaluate, write_result
 
@@ -126,6 +135,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed-start", type=int, default=100_000, help="first demonstration seed (>= 100000; "
                    "lower seeds are reserved for evaluation)")
     p.set_defaults(func=cmd_demos)
+
+    p = sub.add_parser("import-h5", help="convert official ManiSkill trajectories (.h5 + .json) into the schema by "
+                                          "replaying their env states")
+    p.add_argument("--h5", type=Path, required=True)
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--image-size", type=int, default=128)
+    p.add_argument("--cameras", nargs="+", default=["base_camera"])
+    p.add_argument("--max-episodes", type=int, default=None)
+    p.add_argument("--all", action="store_true", help="also import unsuccessful episodes")
+    p.set_defaults(func=cmd_import)
 
     p = sub.add_parser("eval", help="success rate of a checkpoint on the task's fixed held-out seeds 0..N-1")
     p.add_argument("--policy.path", dest="policy_path", required=True, help="pretrained_model directory")

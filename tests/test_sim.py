@@ -206,3 +206,43 @@ def test_policy_env_mismatch_is_explained(checkpoint):
         evaluate(checkpoint, "PickCube-v1", episodes=1, image_size=32)
     with pytest.raises(schema.SchemaError, match="outputs 7-D actions.*takes 8"):
         evaluate(checkpoint, "PickCube-v1", episodes=1, control_mode="pd_joint_pos")
+
+
+def test_import_maniskill_trajectories_written_by_record_episode(tmp_path):
+    """A trajectory file made with ManiSkill's own RecordEpisode wrapper converts into the schema."""
+    import h5py
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+    from mani_skill.utils.wrappers.record import RecordEpisode
+
+    from lerobot_obsbench.datasets.maniskill_import import import_trajectories
+    from lerobot_obsbench.envs.experts import PickCubeExpert
+
+    raw = gym.make("PickCube-v1", obs_mode="none", control_mode="pd_ee_delta_pose", num_envs=1)
+    recorder = RecordEpisode(raw, str(tmp_path / "ms"), save_trajectory=True, trajectory_name="pick", save_video=False)
+    for seed in (7, 9):
+        recorder.reset(seed=seed)
+        expert = PickCubeExpert(recorder.unwrapped)
+        for _ in range(50):
+            action = expert.act()
+            if action is None:
+                break
+            _, _, _, _, info = recorder.step(action)
+            if bool(info["success"][0]):
+                break
+    recorder.close()
+    h5 = tmp_path / "ms" / "pick.h5"
+    info = import_trajectories(h5, tmp_path / "ds", image_size=32)
+    ds = LeRobotDataset("local/imported", root=tmp_path / "ds")
+    assert ds.meta.total_episodes == len(info["episode_ids"]) == 2
+    with h5py.File(h5) as f:
+        for ep, traj_id in enumerate(info["episode_ids"]):
+            traj = f[f"traj_{traj_id}"]
+            actions = np.asarray(traj["actions"])
+            rows = [i for i in range(len(ds)) if int(ds.hf_dataset[i]["episode_index"]) == ep]
+            assert len(rows) == len(actions)
+            qpos = np.asarray(traj["env_states"]["articulations"]["panda"])[:, 13:22]
+            for t in (0, len(rows) // 2, len(rows) - 1):
+                sample = ds[rows[t]]
+                np.testing.assert_allclose(sample["action"].numpy(), actions[t], atol=1e-6)
+                # the frame shows the recorded state, not a re-simulation
+                np.testing.assert_allclose(sample["observation.state"][:9].numpy(), qpos[t], atol=1e-5)

@@ -28,17 +28,16 @@ DATASET_ENTRIES = ("meta", "data", "videos", "images", ".assembling")
 
 def rollout(env, expert_cls, seed: int) -> tuple[bool, dict[str, np.ndarray]]:
     """One expert episode; returns (success, per-key stacked frames incl. `action`)."""
-    env.reset(seed=seed)
+    obs, _ = env.reset(seed=seed)
     expert = expert_cls(env)
     frames: list[dict[str, np.ndarray]] = []
     success = False
     while True:
-        obs = env.schema_frame(env.raw_observation())
         action = expert.act()
         if action is None:  # script finished without success
             break
-        _, _, terminated, truncated, info = env.step(action)
-        frames.append({**obs, schema.ACTION_KEY: action})
+        frames.append({**schema.env_observation_to_frame(obs), schema.ACTION_KEY: action})
+        obs, _, terminated, truncated, info = env.step(action)
         if info["is_success"]:
             success = True
             break
@@ -72,7 +71,15 @@ def _features(sample: dict[str, np.ndarray]) -> dict:
     return feats
 
 
-def assemble(out: Path, staging: Path, seeds: list[int], task: str, fps: int, repo_id: str) -> None:
+def save_episode_file(path: Path, frames: dict[str, np.ndarray]) -> None:
+    """Write one staged episode atomically (a kill leaves either the whole file or none)."""
+    tmp = path.with_name(path.stem + ".tmp.npz")
+    np.savez_compressed(tmp, **frames)
+    os.replace(tmp, path)
+
+
+def assemble(out: Path, episode_files: list[Path], task: str, fps: int, repo_id: str) -> None:
+    """(Re)write the LeRobotDataset in `out` from staged episode files, in the given order."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     for name in DATASET_ENTRIES:  # leftovers of an interrupted assembly
@@ -80,7 +87,7 @@ def assemble(out: Path, staging: Path, seeds: list[int], task: str, fps: int, re
         if path.is_dir():
             shutil.rmtree(path)
     tmp_root = out / ".assembling"
-    episodes = [dict(np.load(staging / f"seed_{s}.npz")) for s in seeds]
+    episodes = [dict(np.load(f)) for f in episode_files]
     ds = LeRobotDataset.create(repo_id=repo_id, fps=fps, features=_features(episodes[0]), root=tmp_root,
                                robot_type="panda", use_videos=True)
     description = task_spec(task).description
@@ -101,7 +108,7 @@ def record_demos(task: str, episodes: int, out: Path, image_size: int = 128, cam
     from lerobot_obsbench.envs.experts import EXPERTS, make_expert
     from lerobot_obsbench.envs.maniskill import ObsBenchEnv
 
-    spec = task_spec(task)
+    task_spec(task)  # unknown task -> TaskError listing the valid ones
     if task not in EXPERTS:
         make_expert(task, None)  # raises the explanatory NotImplementedError
     if seed_start < DEMO_SEED_START:
@@ -133,9 +140,7 @@ def record_demos(task: str, episodes: int, out: Path, image_size: int = 128, cam
                 continue
             ok, frames = rollout(env, EXPERTS[task], seed)
             if ok:
-                tmp = staging / f"seed_{seed}.tmp.npz"
-                np.savez_compressed(tmp, **frames)
-                os.replace(tmp, staging / f"seed_{seed}.npz")
+                save_episode_file(staging / f"seed_{seed}.npz", frames)
                 successes.append(seed)
                 bar.update(1)
             with open(staging / "attempts.jsonl", "a") as log:
@@ -149,7 +154,8 @@ def record_demos(task: str, episodes: int, out: Path, image_size: int = 128, cam
         bar.close()
         env.close()
     seeds = sorted(successes)[:episodes]
-    assemble(out, staging, seeds, task, fps=20, repo_id=repo_id or f"local/obsbench_{task}")
+    assemble(out, [staging / f"seed_{s}.npz" for s in seeds], task, fps=20,
+             repo_id=repo_id or f"local/obsbench_{task}")
     tried = len(attempted)
     info = {"task": task, "seeds": seeds, "expert_success_rate": round(len(successes) / tried, 4),
             "attempts": tried, "image_size": image_size, "cameras": list(cameras), "seed_start": seed_start}
