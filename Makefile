@@ -33,6 +33,7 @@ bench: $(STAMP)
 	$(BIN)/python -m benchmarks.bench_loading
 	$(BIN)/python -m benchmarks.bench_preprocess
 	$(BIN)/python -m benchmarks.bench_train_step
+	$(BIN)/python -m benchmarks.bench_env
 
 clean:
 	rm -rf outputs .pytest_cache

@@ -246,3 +246,34 @@ def test_import_maniskill_trajectories_written_by_record_episode(tmp_path):
                 np.testing.assert_allclose(sample["action"].numpy(), actions[t], atol=1e-6)
                 # the frame shows the recorded state, not a re-simulation
                 np.testing.assert_allclose(sample["observation.state"][:9].numpy(), qpos[t], atol=1e-5)
+
+
+@pytest.mark.parametrize("task", ["StackCube-v1", "PushCube-v1", "PullCube-v1"])
+def test_demos_for_every_task_with_an_expert(task, tmp_path):
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from lerobot_obsbench.datasets.recording import record_demos
+
+    info = record_demos(task, 2, tmp_path / task, image_size=32)
+    ds = LeRobotDataset(f"local/{task}", root=tmp_path / task)
+    assert ds.meta.total_episodes == 2 and len(info["seeds"]) == 2
+    assert 0 < info["expert_success_rate"] <= 1
+    assert ds[0]["observation.depth.base_camera"].shape == (32, 32, 1)
+
+
+def test_tasks_without_an_expert_point_to_the_importer(tmp_path):
+    from lerobot_obsbench.datasets.recording import record_demos
+
+    with pytest.raises(NotImplementedError, match="obsbench import-h5"):
+        record_demos("PegInsertionSide-v1", 1, tmp_path / "peg", image_size=32)
+    with pytest.raises(ValueError, match="evaluation"):
+        record_demos("PickCube-v1", 1, tmp_path / "pick", image_size=32, seed_start=5)
+
+
+def test_doctor_reports_rendering_and_tasks_in_plain_words():
+    proc = subprocess.run([str(BIN / "obsbench"), "doctor"], capture_output=True, text=True, env=ENV,
+                          stdin=subprocess.DEVNULL, timeout=300)
+    assert "ok      rendering works" in proc.stdout
+    assert "ok      PickCube-v1 runs offline" in proc.stdout
+    assert "TurnFaucet-v1" in proc.stdout and "download_asset partnet_mobility_faucet" in proc.stdout
+    assert proc.returncode == 2  # one task needs assets this machine does not have
