@@ -127,7 +127,7 @@ def record_demos(task: str, episodes: int, out: Path, image_size: int = 128, cam
     attempted = _attempted(staging)
     successes = sorted(s for s, ok in attempted.items() if ok)
     env = ObsBenchEnv(task, cameras=cameras, image_size=image_size)
-    max_attempts = max_attempts or 5 * episodes
+    max_attempts = max_attempts or 10 * episodes + 10
     seed = seed_start
     start = time.time()
     bar = tqdm(total=episodes, initial=min(len(successes), episodes), desc=f"{task} demos", unit="ep")

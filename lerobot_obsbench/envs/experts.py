@@ -2,8 +2,10 @@
 
 ManiSkill's own motion-planning solutions need mplib, which cannot run next to LeRobot's numpy >= 2 (DESIGN §7),
 so demonstrations come from these privileged (they read object poses from the simulator) waypoint followers:
-a proportional controller moves the tool-centre point (TCP) and its yaw towards the current waypoint; a phase
-ends when its waypoint is reached (or after a step budget), then the next begins.
+a proportional controller moves the tool-centre point (TCP) and its orientation towards the current waypoint;
+a phase ends when its waypoint is reached (or after a step budget), then the next begins. Experts exist for
+PickCube, StackCube, PushCube, PullCube, PegInsertionSide and PlugCharger; LiftPegUpright has none yet (turning
+the grasped peg upright stalls near the Panda's wrist limit), so use `obsbench import-h5` for it.
 
 Action layout (pd_ee_delta_pose): [dx, dy, dz] in [-1, 1] -> ±0.1 m; [drx, dry, drz] in [-1, 1] -> ±0.1 rad,
 which (measured on ManiSkill 3.0.1's Panda) turns the TCP by the world-frame rotation vector -(drx, dry, drz);
@@ -79,6 +81,7 @@ class Phase:
     max_steps: int = 40
     min_steps: int = 0
     gain: float | None = None
+    rot_tol: float = 0.05
 
 
 class WaypointExpert:
@@ -111,7 +114,7 @@ class WaypointExpert:
             # rotation error as a world-frame rotation vector (see the module docstring for the controller's sign)
             rot_err = (np.zeros(3) if phase.rotation is None
                        else Rotation.from_matrix(phase.rotation(self) @ tcp[:3, :3].T).as_rotvec())
-            reached = np.linalg.norm(err) < phase.tol and np.linalg.norm(rot_err) < 0.05
+            reached = np.linalg.norm(err) < phase.tol and np.linalg.norm(rot_err) < phase.rot_tol
             if (reached and self.steps_in_phase >= phase.min_steps) or self.steps_in_phase >= phase.max_steps:
                 self.index += 1
                 self.steps_in_phase = 0
@@ -205,11 +208,80 @@ class PullCubeExpert(WaypointExpert):
         ]
 
 
+class InsertionExpert(WaypointExpert):
+    """Grasp an object along its x axis, lift it, line it up a little short of `env.goal_pose` (the object's
+    inserted pose), then push it home along its x axis.
+
+    Once grasped, targets are object poses; the TCP target is derived through the object-in-gripper transform
+    measured at every step, so the loop closes on the object and one that shifts in the fingers is still aimed.
+    Subclasses give the object, where to grasp it and how far out to line up (metres along its x axis).
+    """
+
+    object_name: str
+
+    def grasp_offset(self) -> float:
+        raise NotImplementedError
+
+    def line_up_offset(self) -> float:
+        raise NotImplementedError
+
+    def plan(self):
+        grasp_dx, out, inside = self.grasp_offset(), self.line_up_offset(), 0.01
+
+        def obj(s):
+            return s.matrix_of(getattr(s.env, s.object_name).pose)
+
+        def grasp_point(s):
+            return (obj(s) @ np.array([grasp_dx, 0, 0, 1]))[:3]
+
+        grasp_rotation = lambda s: top_down(grasp_yaw(s.tcp()[1], s.pose_of(getattr(s.env, s.object_name))[1], np.pi))  # noqa: E731
+
+        def tcp_for(s, dx):
+            target = s.matrix_of(s.env.goal_pose) @ pose_matrix(np.array([dx, 0, 0]), np.eye(3))
+            return target @ np.linalg.inv(np.linalg.inv(s.tcp_matrix()) @ obj(s))
+
+        def lifted(s):
+            return s.tcp()[0] * [1, 1, 0] + [0, 0, tcp_for(s, out)[2, 3] + 0.05]
+
+        return [
+            Phase("pre-grasp", lambda s: _above(grasp_point(s), 0.06), OPEN, grasp_rotation),
+            Phase("descend", grasp_point, OPEN, grasp_rotation, tol=0.005),
+            Phase("grasp", grasp_point, CLOSED, grasp_rotation, tol=1.0, min_steps=4, max_steps=4),
+            Phase("lift", lifted, CLOSED, tol=0.02),
+            Phase("line up", lambda s: tcp_for(s, out)[:3, 3], CLOSED, lambda s: tcp_for(s, out)[:3, :3],
+                  tol=0.0015, rot_tol=0.01, max_steps=60),
+            Phase("insert", lambda s: tcp_for(s, inside)[:3, 3], CLOSED, lambda s: tcp_for(s, inside)[:3, :3],
+                  tol=0.003, rot_tol=0.01, max_steps=60, gain=0.5),
+        ]
+
+
+class PegInsertionSideExpert(InsertionExpert):
+    object_name = "peg"
+
+    def grasp_offset(self):  # behind the middle, leaving the head free
+        return -0.5 * float(_np(self.env.peg_half_sizes)[0])
+
+    def line_up_offset(self):  # the hole runs through a box as long as the peg: head 2 cm out of the entrance
+        return -(float(_np(self.env.peg_half_sizes)[0]) + 0.02)
+
+
+class PlugChargerExpert(InsertionExpert):
+    object_name = "charger"
+
+    def grasp_offset(self):  # the middle of the charger's base (its frame sits where the prongs start)
+        return -float(self.env._base_size[0])
+
+    def line_up_offset(self):  # prongs 2 cm short of the socket
+        return -(2 * float(self.env._peg_size[0]) + 0.02)
+
+
 EXPERTS: dict[str, type[WaypointExpert]] = {
     "PickCube-v1": PickCubeExpert,
     "StackCube-v1": StackCubeExpert,
     "PushCube-v1": PushCubeExpert,
     "PullCube-v1": PullCubeExpert,
+    "PegInsertionSide-v1": PegInsertionSideExpert,
+    "PlugCharger-v1": PlugChargerExpert,
 }
 
 
