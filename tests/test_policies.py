@@ -120,3 +120,31 @@ def test_save_load_round_trip_and_inference(tiny_dataset, tmp_path, policy_type,
         # the sensor keys were queued: a second step reuses the cached chunk without failing
         assert all(len(policy._queues[k]) == policy.config.n_obs_steps for k in policy.diffusion.observation.input_keys)
         policy.select_action(dict(obs))
+
+
+@pytest.mark.parametrize("policy_type", list(POLICIES))
+def test_env_passthrough_reaches_the_policy(tiny_dataset, policy_type):
+    """What stock lerobot-eval feeds the policy (preprocess_observation of the env's dict, with depth and camera
+    parameters in `robot_state`) gives the same action as the same frame presented like a dataset batch."""
+    from lerobot.envs.utils import preprocess_observation
+
+    from lerobot_obsbench.datasets import schema
+
+    policy, pre, _, dataset = training_setup(policy_type, "pointcloud", tiny_dataset)
+    sample = dataset[5]
+    frame = {k: (v[-1] if policy_type == "obs_diffusion" else v)[None]  # one frame, batch of 1
+             for k, v in sample.items() if k.startswith("observation") and not k.endswith("_is_pad")}
+    env_frame = {k: v.numpy() for k, v in frame.items()}  # what ObsBenchEnv sends: uint8 HWC colour, uint16 depth
+    env_frame["observation.images.base_camera"] = (
+        (frame["observation.images.base_camera"] * 255).round().byte().permute(0, 2, 3, 1).numpy())
+    env_frame["observation.depth.base_camera"] = env_frame["observation.depth.base_camera"].astype("uint16")
+    via_env = pre(preprocess_observation(schema.frame_to_env_observation(env_frame)))
+    assert "observation.robot_state" in via_env
+    direct = pre(dict(frame))
+    policy.eval()
+    actions = []
+    for batch in (via_env, direct):
+        policy.reset()
+        torch.manual_seed(0)
+        actions.append(policy.select_action(batch))
+    assert torch.allclose(actions[0], actions[1], atol=1e-5)
