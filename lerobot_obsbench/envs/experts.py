@@ -3,9 +3,8 @@
 ManiSkill's own motion-planning solutions need mplib, which cannot run next to LeRobot's numpy >= 2 (DESIGN §7),
 so demonstrations come from these privileged (they read object poses from the simulator) waypoint followers:
 a proportional controller moves the tool-centre point (TCP) and its orientation towards the current waypoint;
-a phase ends when its waypoint is reached (or after a step budget), then the next begins. Experts exist for
-PickCube, StackCube, PushCube, PullCube, PegInsertionSide and PlugCharger; LiftPegUpright has none yet (turning
-the grasped peg upright stalls near the Panda's wrist limit), so use `obsbench import-h5` for it.
+a phase ends when its waypoint is reached (or after a step budget), then the next begins. Every offline OBSBench task has
+one (TurnFaucet's assets are not available here).
 
 Action layout (pd_ee_delta_pose): [dx, dy, dz] in [-1, 1] -> ±0.1 m; [drx, dry, drz] in [-1, 1] -> ±0.1 rad,
 which (measured on ManiSkill 3.0.1's Panda) turns the TCP by the world-frame rotation vector -(drx, dry, drz);
@@ -208,6 +207,41 @@ class PullCubeExpert(WaypointExpert):
         ]
 
 
+class LiftPegUprightExpert(WaypointExpert):
+    """Pinch the lying peg lightly near one end, lift that end: the peg swings about the finger axis until it
+    hangs upright below the fingers; lower it onto the table and let go.
+
+    (Turning a firmly grasped peg by 90° instead stalls near the Panda's wrist limit.)
+    """
+
+    pinch = 0.05  # gripper command that touches the peg with little force, so it can pivot between the fingers
+
+    def plan(self):
+        half_length = float(self.env.peg_half_length)
+        peg = lambda s: s.matrix_of(s.env.peg.pose)  # noqa: E731
+        near_end = lambda s: (peg(s) @ np.array([-(half_length - 0.02), 0, 0, 1]))[:3]  # noqa: E731
+        rotation = lambda s: top_down(grasp_yaw(s.tcp()[1], s.pose_of(s.env.peg)[1], np.pi))  # noqa: E731
+        self.raised = None
+
+        def high(s):
+            if s.raised is None:
+                s.raised = s.tcp()[0] * [1, 1, 0] + [0, 0, 0.32]
+            return s.raised
+
+        def standing(s):  # lower until the peg's centre is at its standing height
+            return s.tcp()[0] + [0, 0, half_length + 0.003 - s.pose_of(s.env.peg)[0][2]]
+
+        return [
+            Phase("pre-grasp", lambda s: _above(near_end(s), 0.06), OPEN, rotation),
+            Phase("descend", near_end, OPEN, rotation, tol=0.005),
+            Phase("pinch", near_end, self.pinch, rotation, tol=1.0, min_steps=5, max_steps=5),
+            Phase("raise", high, self.pinch, rotation, tol=0.01, max_steps=30),
+            Phase("swing", high, self.pinch, rotation, tol=1.0, min_steps=5, max_steps=5),
+            Phase("lower", standing, self.pinch, rotation, tol=0.003, max_steps=40, gain=1.0),
+            Phase("release", lambda s: s.tcp()[0], OPEN, tol=1.0, min_steps=5, max_steps=5),
+        ]
+
+
 class InsertionExpert(WaypointExpert):
     """Grasp an object along its x axis, lift it, line it up a little short of `env.goal_pose` (the object's
     inserted pose), then push it home along its x axis.
@@ -282,6 +316,7 @@ EXPERTS: dict[str, type[WaypointExpert]] = {
     "PullCube-v1": PullCubeExpert,
     "PegInsertionSide-v1": PegInsertionSideExpert,
     "PlugCharger-v1": PlugChargerExpert,
+    "LiftPegUpright-v1": LiftPegUprightExpert,
 }
 
 
