@@ -1,5 +1,6 @@
 """Env speed: steps/s of raw ManiSkill (state only; one 128² rgb+depth camera) vs the plugin's ObsBenchEnv
-(same camera, converted to the schema), and expert demonstrations per minute, side by side in one run.
+(same camera, converted to the schema), and expert episodes (attempts, successful or not) per minute with the
+plugin's recorder path vs the same expert on raw ManiSkill, side by side in one run.
 
     .venv/bin/python -m benchmarks.bench_env [--steps 100] [--episodes 3] [--out FILE]
 """
@@ -92,7 +93,7 @@ def main() -> None:
         raw_per_min, _ = expert_episodes_per_minute(raw, expert_cls, args.episodes, raw_step)
         demos[task] = {"plugin_episodes_per_min": round(per_min, 1), "raw_episodes_per_min": round(raw_per_min, 1),
                        "expert_success_in_run": success}
-        print(f"{task}: {per_min:.1f} demos/min with the plugin, {raw_per_min:.1f} raw ManiSkill "
+        print(f"{task}: {per_min:.1f} expert episodes/min with the plugin, {raw_per_min:.1f} raw ManiSkill "
               f"(expert success {success:.0%} of {args.episodes})")
         ours.close()
         raw.close()
