@@ -148,3 +148,21 @@ def test_env_passthrough_reaches_the_policy(tiny_dataset, policy_type):
         torch.manual_seed(0)
         actions.append(policy.select_action(batch))
     assert torch.allclose(actions[0], actions[1], atol=1e-5)
+
+
+def test_policy_env_compatibility_names_each_mismatch(tiny_dataset):
+    from types import SimpleNamespace
+
+    from lerobot_obsbench.envs.evaluate import check_compatible
+
+    policy, *_ = training_setup("obs_act", "rgbd", tiny_dataset)
+    assert policy.config.camera_resolution == [40, 40]
+    # the synthetic dataset has a 15-D state; ObsBenchEnv gives 16 (9 joints + TCP pose)
+    env = SimpleNamespace(cameras=["hand_camera"], image_size=64, action_space=SimpleNamespace(shape=(8,)))
+    with pytest.raises(SchemaError) as err:
+        check_compatible(policy.config, env)
+    message = str(err.value)
+    assert "cameras ['base_camera'] but the env renders ['hand_camera']" in message
+    assert "trained on 40x40 frames" in message and "--env.image_size=40" in message
+    assert "observation.state of size 15, the env gives 16" in message
+    assert "7-D actions" in message and "takes 8" in message
