@@ -19,22 +19,21 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from lerobot_obsbench.envs.maniskill import to_numpy
+
 POS_SCALE = 0.1
 ROT_SCALE = 0.1
 OPEN, CLOSED = 1.0, -1.0
 
 
 def _np(x) -> np.ndarray:
-    return x.detach().cpu().numpy().reshape(-1) if hasattr(x, "detach") else np.asarray(x).reshape(-1)
+    """A single env's value (ManiSkill returns batches of one) as a flat array."""
+    return to_numpy(x).reshape(-1)
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    w, x, y, z = q / np.linalg.norm(q)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
+    """Rotation matrix of a (w, x, y, z) quaternion."""
+    return Rotation.from_quat(q, scalar_first=True).as_matrix()
 
 
 def yaw_of(q: np.ndarray) -> float:
@@ -98,12 +97,10 @@ class WaypointExpert:
         raise NotImplementedError
 
     def tcp(self) -> tuple[np.ndarray, float]:
-        pose = self.env.agent.tcp.pose
-        return _np(pose.p), yaw_of(_np(pose.q))
+        return self.pose_of(self.env.agent.tcp)
 
     def tcp_matrix(self) -> np.ndarray:
-        pose = self.env.agent.tcp.pose
-        return pose_matrix(_np(pose.p), quat_to_matrix(_np(pose.q)))
+        return self.matrix_of(self.env.agent.tcp.pose)
 
     def act(self) -> np.ndarray | None:
         while self.index < len(self.phases):

@@ -56,7 +56,7 @@ def import_maniskill(asset_dir: str | None = None):
     return mani_skill.envs
 
 
-def _np(x) -> np.ndarray:
+def to_numpy(x) -> np.ndarray:
     return x.detach().cpu().numpy() if hasattr(x, "detach") else np.asarray(x)
 
 
@@ -136,14 +136,14 @@ class ObsBenchEnv(gym.Env):
         frame = {}
         for cam in self.cameras:
             data, param = obs["sensor_data"][cam], obs["sensor_param"][cam]
-            frame[f"observation.images.{cam}"] = _np(data["rgb"][0]).astype(np.uint8)
-            frame[f"observation.depth.{cam}"] = np.clip(_np(data["depth"][0]), 0, None).astype(np.uint16)
-            frame[f"observation.intrinsics.{cam}"] = opencv_intrinsics(_np(param["intrinsic_cv"][0]))
-            frame[f"observation.cam2world.{cam}"] = cam2world_from_extrinsic(_np(param["extrinsic_cv"][0]))
-        state = np.concatenate([_np(obs["agent"]["qpos"][0]), _np(obs["extra"]["tcp_pose"][0])])
+            frame[f"observation.images.{cam}"] = to_numpy(data["rgb"][0]).astype(np.uint8)
+            frame[f"observation.depth.{cam}"] = np.clip(to_numpy(data["depth"][0]), 0, None).astype(np.uint16)
+            frame[f"observation.intrinsics.{cam}"] = opencv_intrinsics(to_numpy(param["intrinsic_cv"][0]))
+            frame[f"observation.cam2world.{cam}"] = cam2world_from_extrinsic(to_numpy(param["extrinsic_cv"][0]))
+        state = np.concatenate([to_numpy(obs["agent"]["qpos"][0]), to_numpy(obs["extra"]["tcp_pose"][0])])
         frame["observation.state"] = state.astype(np.float32)
         if self.spec_.goal_keys:
-            goal = [_np(obs["extra"][k][0]).reshape(-1) for k in self.spec_.goal_keys]
+            goal = [to_numpy(obs["extra"][k][0]).reshape(-1) for k in self.spec_.goal_keys]
             frame["observation.environment_state"] = np.concatenate(goal).astype(np.float32)
         return frame
 
@@ -152,7 +152,7 @@ class ObsBenchEnv(gym.Env):
     # ---- gym API -----------------------------------------------------------------------------------------
 
     def _info(self, info: dict) -> dict:
-        success = bool(_np(info["success"]).reshape(-1)[0]) if "success" in info else False
+        success = bool(to_numpy(info["success"]).reshape(-1)[0]) if "success" in info else False
         for name in self.spec_.sub_success:
             self._milestones[name] = self._milestones.get(name, False) or self._milestone(name, info, success)
         return {"is_success": success, **{f"sub_success/{k}": v for k, v in self._milestones.items()}}
@@ -163,10 +163,10 @@ class ObsBenchEnv(gym.Env):
             return success
         if name == "grasp":
             obj = {"StackCube-v1": "cubeA", "PegInsertionSide-v1": "peg", "PlugCharger-v1": "charger"}[self.spec_.name]
-            return bool(_np(env.agent.is_grasping(getattr(env, obj))).reshape(-1)[0])
+            return bool(to_numpy(env.agent.is_grasping(getattr(env, obj))).reshape(-1)[0])
         if name == "align":  # peg head within the hole's cross-section (before or while inserting)
-            head = _np(info["peg_head_pos_at_hole"]).reshape(-1)
-            radius = float(_np(env.box_hole_radii).reshape(-1)[0])
+            head = to_numpy(info["peg_head_pos_at_hole"]).reshape(-1)
+            radius = float(to_numpy(env.box_hole_radii).reshape(-1)[0])
             return bool(abs(head[1]) <= radius and abs(head[2]) <= radius and head[0] >= -0.05)
         raise KeyError(name)
 
@@ -180,15 +180,15 @@ class ObsBenchEnv(gym.Env):
 
     def step(self, action):
         obs, reward, terminated, truncated, info = self._env.step(np.asarray(action, dtype=np.float32))
-        return (self.to_env_observation(self.schema_frame(obs)), float(_np(reward).reshape(-1)[0]),
-                bool(_np(terminated).reshape(-1)[0]), bool(_np(truncated).reshape(-1)[0]), self._info(info))
+        return (self.to_env_observation(self.schema_frame(obs)), float(to_numpy(reward).reshape(-1)[0]),
+                bool(to_numpy(terminated).reshape(-1)[0]), bool(to_numpy(truncated).reshape(-1)[0]), self._info(info))
 
     def raw_observation(self) -> dict:
         """The current ManiSkill observation (batch of 1), e.g. to record a frame after reset/step."""
         return self.unwrapped_ms.get_obs()
 
     def render(self):
-        return _np(self._env.render())[0]
+        return to_numpy(self._env.render())[0]
 
     def close(self):
         self._env.close()
