@@ -55,6 +55,16 @@ def check_frame(frame: str) -> str:
     return frame
 
 
+def check_geometry(workspace, voxel_size: float, depth_clip) -> None:
+    """Workspace box, voxel edge and depth range, checked where they are configured and where they are used."""
+    if len(workspace) != 6 or any(workspace[2 * i] >= workspace[2 * i + 1] for i in range(3)):
+        raise ValueError(f"workspace must be (xmin, xmax, ymin, ymax, zmin, zmax) with min < max; got {workspace}")
+    if voxel_size <= 0:
+        raise ValueError(f"voxel_size must be > 0 metres; got {voxel_size}")
+    if len(depth_clip) != 2 or not depth_clip[0] < depth_clip[1]:
+        raise ValueError(f"depth_clip must be (near, far) in metres with near < far; got {depth_clip}")
+
+
 def input_channels(obs_space: str, point_features: str = "rgb+xyz") -> int:
     """Channels the encoder receives: image channels, or per-point feature size for point clouds."""
     if check_obs_space(obs_space) == "pointcloud":
@@ -76,12 +86,7 @@ class ObservationAdapter(nn.Module):
         super().__init__()
         if not cameras:
             raise SchemaError("ObservationAdapter needs at least one camera name.")
-        if len(workspace) != 6 or any(workspace[2 * i] >= workspace[2 * i + 1] for i in range(3)):
-            raise ValueError(f"workspace must be (xmin, xmax, ymin, ymax, zmin, zmax) with min < max; got {workspace}")
-        if voxel_size <= 0:
-            raise ValueError(f"voxel_size must be > 0 metres; got {voxel_size}")
-        if not depth_clip[0] < depth_clip[1]:
-            raise ValueError(f"depth_clip must be (near, far) with near < far; got {depth_clip}")
+        check_geometry(workspace, voxel_size, depth_clip)
         self.obs_space = check_obs_space(obs_space)
         self.cameras = list(cameras)
         self.frame = check_frame(frame)

@@ -43,6 +43,10 @@ def test_config_time_errors(policy_type):
         cfg_cls(device="cpu", point_features="normals")
     with pytest.raises(ValueError, match="sampling"):
         cfg_cls(device="cpu", sampling="mid")
+    with pytest.raises(ValueError, match="workspace must be"):
+        cfg_cls(device="cpu", workspace=[1, -1, -1, 1, 0, 1])
+    with pytest.raises(ValueError, match="depth_clip must be"):
+        cfg_cls(device="cpu", depth_clip=[2.0, 0.5])
 
 
 def _features_without(root, prefix):

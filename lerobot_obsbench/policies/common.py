@@ -17,7 +17,13 @@ from lerobot_obsbench import geometry
 from lerobot_obsbench.datasets import schema
 from lerobot_obsbench.encoders import check_encoder, make_encoder
 from lerobot_obsbench.encoders.pointnet import SAMPLING
-from lerobot_obsbench.spaces import DEFAULT_WORKSPACE, ObservationAdapter, check_frame, check_point_features
+from lerobot_obsbench.spaces import (
+    DEFAULT_WORKSPACE,
+    ObservationAdapter,
+    check_frame,
+    check_geometry,
+    check_point_features,
+)
 
 # The paper's encoder for each space when `encoder` is left empty.
 DEFAULT_ENCODER = {"rgb": "resnet50", "depth": "resnet50", "rgbd": "resnet50", "pointmap": "resnet50",
@@ -94,15 +100,10 @@ class ObservationConfig:
         check_point_features(self.point_features)
         if self.sampling not in SAMPLING:
             raise ValueError(f"sampling must be one of {SAMPLING}; got {self.sampling!r}")
-        if len(self.workspace) != 6:
-            raise ValueError(f"workspace needs 6 numbers (xmin, xmax, ymin, ymax, zmin, zmax); got {self.workspace}")
-        if len(self.depth_clip) != 2:
-            raise ValueError(f"depth_clip needs (near, far) in metres; got {self.depth_clip}")
+        check_geometry(self.workspace, self.voxel_size, self.depth_clip)
         for name in ("num_tokens", "knn"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1; got {getattr(self, name)}")
-        if self.voxel_size <= 0:
-            raise ValueError(f"voxel_size must be > 0 metres; got {self.voxel_size}")
 
     def resolve_observation_features(self) -> None:
         """Check the dataset features against the space, fix `cameras`, and take the sensor keys out of
