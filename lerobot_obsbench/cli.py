@@ -99,13 +99,56 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
     result = evaluate(args.policy_path, args.task, args.episodes, image_size=args.image_size,
                       control_mode=args.control_mode, episode_length=args.episode_length, device=args.device,
-                      video_dir=args.videos, asset_dir=args.asset_dir)
+                      video_dir=args.videos, asset_dir=args.asset_dir, perturbation=args.perturbation)
     write_result(result, args.out)
     lo, hi = result["ci95"]
     sub = "".join(f", {k} {v:.0%}" for k, v in result["sub_success"].items())
     print(f"{result['task']}: success {result['successes']}/{result['episodes']} = {result['success_rate']:.1%} "
           f"(95% CI {lo:.1%}-{hi:.1%}){sub}; mean episode length {result['episode_length_mean']}"
           + (f"; written to {args.out}" if args.out else ""))
+    return 0
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from lerobot_obsbench.bench.grid import load_grid
+    from lerobot_obsbench.bench.runner import run_grid
+
+    grid = load_grid(args.grid)
+    out = args.out or Path("outputs") / "bench" / grid.name
+    failures = run_grid(grid, out, workers=args.workers, device=args.device, dry_run=args.dry_run)
+    if failures:
+        print(f"{failures} run(s) failed (see the messages above); rerun the same command to retry them.")
+        return 1
+    if not args.dry_run:
+        print(f"done: results in {out / 'results.jsonl'}; `obsbench report {out / 'results.jsonl'}` makes the tables")
+    return 0
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    import json
+
+    from lerobot_obsbench.bench.report import (build_report, markdown_table, read_published, summary_json,
+                                               write_report)
+    from lerobot_obsbench.bench.results import read_results
+
+    if args.results is None and args.table is None:
+        raise SystemExit("obsbench report: give a results file (results.jsonl) and/or --table FILE.csv")
+    records = read_results(args.results) if args.results else []
+    if args.results and not records:
+        print(f"warning: no readable records in {args.results}", file=sys.stderr)
+    published = read_published(args.table) if args.table else None
+    report = build_report(records, published, published_name=args.table.stem if args.table else "published")
+    out = args.out or (args.results.parent / "report" if args.results else Path("report"))
+    paths = write_report(report, out, title=args.title)
+    heading, (header, rows) = report["sections"][0]
+    print(f"{heading}\n{markdown_table(header, rows)}")
+    for source, methods in summary_json(report).items():
+        for method, s in sorted(methods.items(), key=lambda kv: kv[1]["mean_rank"]):
+            print(f"{source:9s} {method:45s} Mean S.R. {s['mean_sr']:.2f}  Mean Rank {s['mean_rank']:.2f}")
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(summary_json(report), indent=2) + "\n")
+    print(f"report: {paths['markdown']}, {paths['html']}" + (f"; summary: {args.json}" if args.json else ""))
     return 0
 
 
@@ -155,6 +198,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--env.control_mode", dest="control_mode", default="pd_ee_delta_pose")
     p.add_argument("--env.episode_length", dest="episode_length", type=int, default=None)
     p.add_argument("--env.asset_dir", dest="asset_dir", default=None)
+    p.add_argument("--env.perturbation", dest="perturbation", default=None,
+                   help="zero-shot perturbation kind:value, e.g. camera_yaw:10, light:0.03, background:1,0.2,0.2, "
+                        "noise:16")
     p.add_argument("--policy.device", dest="device", default="cpu")
     p.add_argument("--videos", type=Path, default=None, help="write one mp4 per episode here")
     p.add_argument("--out", type=Path, default=None, help="write the JSON result here")
@@ -163,6 +209,25 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("doctor", help="check simulator rendering and which tasks can run on this machine")
     p.add_argument("--asset-dir", default=None, help="ManiSkill asset directory (MS_ASSET_DIR)")
     p.set_defaults(func=cmd_doctor)
+
+    p = sub.add_parser("run", help="run a benchmark grid (YAML file or preset name: quick, paper-main, ...): "
+                                    "demos -> lerobot-train -> eval -> results.jsonl; resumable")
+    p.add_argument("grid", help="grid YAML file, or the name of a preset in configs/bench/")
+    p.add_argument("--out", type=Path, default=None, help="output directory (default outputs/bench/<grid name>)")
+    p.add_argument("--workers", type=int, default=1, help="runs executed in parallel local processes")
+    p.add_argument("--device", default="cpu", help="torch device for training and evaluation (cpu, cuda)")
+    p.add_argument("--dry-run", action="store_true", help="print the runs still to do and a rough cost; run nothing")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("report", help="paper-style tables (Markdown + HTML) and plots from results.jsonl and/or "
+                                       "a published table")
+    p.add_argument("results", type=Path, nargs="?", default=None, help="results.jsonl written by `obsbench run`")
+    p.add_argument("--table", type=Path, default=None, help="published table CSV: rows = tasks, columns = "
+                   "methods, values = success rates in [0, 1]")
+    p.add_argument("--out", type=Path, default=None, help="report directory (default: next to the results)")
+    p.add_argument("--json", type=Path, default=None, help="write mean_sr and mean_rank per method here")
+    p.add_argument("--title", default="OBSBench report")
+    p.set_defaults(func=cmd_report)
 
     p = sub.add_parser("preset", help="print the --policy.* overrides of a named preset, to paste into lerobot-train")
     p.add_argument("--preset", default="cpu", choices=("paper", "cpu", "tiny"))
@@ -175,8 +240,15 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     import lerobot_obsbench  # noqa: F401  (registers policies and encoders)
+    from lerobot_obsbench.bench.grid import GridError
+    from lerobot_obsbench.bench.report import ReportError
+    from lerobot_obsbench.envs.tasks import TaskError
 
-    return args.func(args)
+    try:
+        return args.func(args)
+    except (GridError, ReportError, TaskError, SchemaError) as err:
+        print(f"obsbench {args.command}: error: {err}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -35,14 +35,23 @@ PRESETS: dict[str, dict[str, dict[str, object]]] = {
 CPU_IMAGE_ENCODER = "resnet18"
 
 
+def default_encoder(preset: str, obs_space: str) -> str:
+    """The encoder a preset uses for `obs_space` when none is named."""
+    from lerobot_obsbench.policies.common import DEFAULT_ENCODER
+
+    if preset != "paper" and obs_space != "pointcloud":
+        return CPU_IMAGE_ENCODER
+    return DEFAULT_ENCODER[obs_space]
+
+
 def preset_overrides(preset: str, policy_type: str, obs_space: str) -> dict[str, object]:
     if preset not in PRESETS:
         raise ValueError(f"Unknown preset {preset!r}; choose one of {', '.join(PRESETS)}.")
     if policy_type not in PRESETS[preset]:
         raise ValueError(f"Unknown policy type {policy_type!r}; choose one of {', '.join(PRESETS[preset])}.")
     overrides = dict(PRESETS[preset][policy_type])
-    if preset != "paper" and obs_space != "pointcloud":
-        overrides["encoder"] = CPU_IMAGE_ENCODER
+    if preset != "paper":
+        overrides["encoder"] = default_encoder(preset, obs_space)
     return overrides
 
 

@@ -8,6 +8,7 @@ from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
 
 from lerobot_obsbench.envs.maniskill import CONTROL_MODES, STATE_DIM
+from lerobot_obsbench.envs.perturbations import parse_perturbation
 from lerobot_obsbench.envs.tasks import task_spec
 
 ACTION_DIMS = {"pd_ee_delta_pose": 7, "pd_joint_pos": 8}
@@ -36,9 +37,13 @@ class ObsBenchEnvConfig(EnvConfig):
     seed: int | None = None
     # Directory with ManiSkill's downloaded assets (MS_ASSET_DIR), needed by TurnFaucet-v1 only.
     asset_dir: str | None = None
+    # Zero-shot evaluation perturbation `kind:value` (camera_yaw:5, camera_pitch:10, light:0.03,
+    # background:1,0.2,0.2, noise:16; see lerobot_obsbench/envs/perturbations.py); None = the nominal scene.
+    perturbation: str | None = None
 
     def __post_init__(self):
         spec = task_spec(self.task)
+        parse_perturbation(self.perturbation)  # a typo fails here, not after the policy loaded
         if self.control_mode not in CONTROL_MODES:
             raise ValueError(f"control_mode must be one of {CONTROL_MODES}; got {self.control_mode!r}")
         size = (self.image_size, self.image_size, 3)
@@ -66,4 +71,5 @@ class ObsBenchEnvConfig(EnvConfig):
         steps = self.episode_length or task_spec(self.task).max_steps
         # `max_episode_steps` is gym.make's TimeLimit (lerobot-eval reads it); `episode_length` reaches ManiSkill.
         return {"cameras": list(self.cameras), "image_size": self.image_size, "control_mode": self.control_mode,
-                "asset_dir": self.asset_dir, "seed": self.seed, "episode_length": steps, "max_episode_steps": steps}
+                "asset_dir": self.asset_dir, "seed": self.seed, "episode_length": steps, "max_episode_steps": steps,
+                "perturbation": self.perturbation}

@@ -63,7 +63,8 @@ def _batched(obs):
 
 def evaluate(policy_path: str | Path, task: str, episodes: int, image_size: int | None = None,
              control_mode: str = "pd_ee_delta_pose", episode_length: int | None = None, device: str = "cpu",
-             video_dir: Path | None = None, asset_dir: str | None = None) -> dict:
+             video_dir: Path | None = None, asset_dir: str | None = None, perturbation: str | None = None,
+             progress: bool = True) -> dict:
     from lerobot.envs.utils import preprocess_observation
 
     spec = task_spec(task)
@@ -73,11 +74,12 @@ def evaluate(policy_path: str | Path, task: str, episodes: int, image_size: int 
     size = image_size or (resolution[0] if resolution else 128)
     steps = episode_length or spec.max_steps
     env = ObsBenchEnv(task, cameras=cameras, image_size=size, control_mode=control_mode, asset_dir=asset_dir,
-                      episode_length=steps)
+                      episode_length=steps, perturbation=perturbation)
     check_compatible(policy.config, env)
     records = []
     start = time.time()
-    bar = tqdm(eval_seeds(episodes), desc=f"eval {task}", unit="ep")
+    label = f"eval {task}" + (f" [{perturbation}]" if perturbation not in (None, "none") else "")
+    bar = tqdm(eval_seeds(episodes), desc=label, unit="ep", disable=not progress)
     for seed in bar:
         torch.manual_seed(seed)
         obs, info = env.reset(seed=seed)
@@ -113,6 +115,7 @@ def evaluate(policy_path: str | Path, task: str, episodes: int, image_size: int 
         "ci95": [round(low, 4), round(high, 4)], "sub_success": sub,
         "episode_length_mean": round(float(np.mean([r["length"] for r in records])), 2),
         "per_episode": records, "image_size": size, "control_mode": control_mode,
+        "perturbation": perturbation or "none",
         "wall_s": round(time.time() - start, 1),
     }
 

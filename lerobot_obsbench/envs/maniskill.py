@@ -22,6 +22,7 @@ import gymnasium as gym
 import numpy as np
 
 from lerobot_obsbench.datasets import schema
+from lerobot_obsbench.envs.perturbations import apply_scene_perturbation, camera_overrides, parse_perturbation
 from lerobot_obsbench.envs.tasks import TaskError, asset_help, missing_assets, task_spec
 
 CONTROL_MODES = ("pd_ee_delta_pose", "pd_joint_pos")
@@ -82,7 +83,8 @@ class ObsBenchEnv(gym.Env):
 
     def __init__(self, task: str, cameras=("base_camera",), image_size: int = 128,
                  control_mode: str = "pd_ee_delta_pose", asset_dir: str | None = None, seed: int | None = None,
-                 episode_length: int | None = None, render_mode: str | None = "rgb_array"):
+                 episode_length: int | None = None, render_mode: str | None = "rgb_array",
+                 perturbation: str | None = None):
         spec = task_spec(task)
         if control_mode not in CONTROL_MODES:
             raise ValueError(f"control_mode must be one of {CONTROL_MODES}; got {control_mode!r}")
@@ -96,17 +98,21 @@ class ObsBenchEnv(gym.Env):
         self.task = spec.description
         self.task_description = spec.description
         self._next_seed = seed
-        try:
-            self._env = gym.make(
-                task, obs_mode="rgb+depth", control_mode=control_mode, render_mode="rgb_array",
-                sensor_configs=dict(width=image_size, height=image_size), num_envs=1,
-                max_episode_steps=episode_length or spec.max_steps,
-            )
-            obs, _ = self._env.reset(seed=0)
-        except RuntimeError as err:
-            if any(word in str(err).lower() for word in ("vulkan", "vk::", "render")):
-                raise RenderingError(f"{RENDERING_HELP} (SAPIEN: {err})") from err
-            raise
+        self.perturbation = parse_perturbation(perturbation)
+        sensor_configs = dict(width=image_size, height=image_size)
+        if self.perturbation and self.perturbation.kind == "noise":
+            import sapien
+
+            sapien.render.set_ray_tracing_samples_per_pixel(int(self.perturbation.scalar))
+            sapien.render.set_ray_tracing_denoiser("none")
+            sensor_configs["shader_pack"] = "rt"
+        obs = self._make(task, control_mode, sensor_configs, episode_length or spec.max_steps)
+        if self.perturbation and self.perturbation.kind.startswith("camera"):
+            sensor_configs.update(camera_overrides(self._env.unwrapped, self.cameras, self.perturbation))
+            self._env.close()
+            obs = self._make(task, control_mode, sensor_configs, episode_length or spec.max_steps)
+        if self.perturbation and self.perturbation.kind in ("light", "background"):
+            apply_scene_perturbation(self._env.unwrapped, self.perturbation)
         available = list(obs["sensor_data"])
         unknown = [c for c in self.cameras if c not in available]
         if unknown:
@@ -128,6 +134,17 @@ class ObsBenchEnv(gym.Env):
             spaces["environment_state"] = gym.spaces.Box(-np.inf, np.inf, (goal_dim,), np.float32)
         self.observation_space = gym.spaces.Dict(spaces)
         self._milestones: dict[str, bool] = {}
+
+    def _make(self, task: str, control_mode: str, sensor_configs: dict, max_steps: int) -> dict:
+        try:
+            self._env = gym.make(task, obs_mode="rgb+depth", control_mode=control_mode, render_mode="rgb_array",
+                                 sensor_configs=sensor_configs, num_envs=1, max_episode_steps=max_steps)
+            obs, _ = self._env.reset(seed=0)
+        except RuntimeError as err:
+            if any(word in str(err).lower() for word in ("vulkan", "vk::", "render")):
+                raise RenderingError(f"{RENDERING_HELP} (SAPIEN: {err})") from err
+            raise
+        return obs
 
     # ---- observation conversion --------------------------------------------------------------------------
 

@@ -1,0 +1,350 @@
+"""`obsbench report`: paper-style tables and plots from a results store and/or a published table.
+
+Per task, the success rate of each method (columns) pools every training seed's evaluation episodes, with a
+95% Wilson interval. Summary rows follow the paper: Mean S.R. is the mean over tasks of the per-task success
+rates; Mean Rank ranks the methods on each task with competition ranking ("1224": tied methods share the best
+rank of their group, the next rank skips) and averages the ranks over tasks. A method missing on a task is
+left out of that task's ranking and mean (and marked).
+"""
+
+from __future__ import annotations
+
+import base64
+import csv
+import html
+import io
+import json
+import math
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+
+from lerobot_obsbench.envs.perturbations import NOMINAL_VALUE, parse_perturbation
+from lerobot_obsbench.stats import wilson_interval
+
+# Config fields that, when they differ between runs of one method, become part of its column label.
+LABEL_FIELDS = ("preset", "lr", "steps", "epochs", "image_size", "policy_overrides")
+
+
+@dataclass(frozen=True)
+class Cell:
+    successes: int
+    episodes: int
+
+    @property
+    def rate(self) -> float:
+        return self.successes / self.episodes
+
+    @property
+    def ci95(self) -> tuple[float, float]:
+        return wilson_interval(self.successes, self.episodes)
+
+
+class ReportError(ValueError):
+    """Unreadable published table or empty input."""
+
+
+def competition_ranks(values: dict[str, float]) -> dict[str, int]:
+    """Higher is better; rank = 1 + the number of strictly better methods ("1224" ranking)."""
+    return {m: 1 + sum(other > v for other in values.values()) for m, v in values.items()}
+
+
+def summarize(table: dict[str, dict[str, float]]) -> dict[str, dict]:
+    """Mean S.R. and Mean Rank per method of {task: {method: success rate}}."""
+    rates, ranks = defaultdict(list), defaultdict(list)
+    for row in table.values():
+        for method, rank in competition_ranks(row).items():
+            rates[method].append(row[method])
+            ranks[method].append(rank)
+    return {m: {"mean_sr": sum(rates[m]) / len(rates[m]), "mean_rank": sum(ranks[m]) / len(ranks[m]),
+                "tasks": len(rates[m])} for m in rates}
+
+
+def read_published(path: Path) -> dict[str, dict[str, float]]:
+    """A published table as CSV: first column the task, one column per method, success rates in [0, 1];
+    empty cells are missing values."""
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))
+    if len(rows) < 2 or len(rows[0]) < 2:
+        raise ReportError(f"{path}: expected a header (task, method, ...) and at least one task row")
+    methods = [m.strip() for m in rows[0][1:]]
+    table = {}
+    for number, row in enumerate(rows[1:], start=2):
+        if not row or not row[0].strip():
+            continue
+        if len(row) != len(methods) + 1:
+            raise ReportError(f"{path}:{number}: {len(row)} cells, the header has {len(methods) + 1}")
+        values = {}
+        for method, text in zip(methods, row[1:]):
+            if not text.strip():
+                continue
+            try:
+                value = float(text)
+            except ValueError:
+                raise ReportError(f"{path}:{number}: {method} = {text!r} is not a number") from None
+            if not 0 <= value <= 1:
+                raise ReportError(f"{path}:{number}: {method} = {value} is not a success rate in [0, 1]")
+            values[method] = value
+        table[row[0].strip()] = values
+    return table
+
+
+# ---- own results -----------------------------------------------------------------------------------------
+
+
+def method_labels(records: list[dict]) -> dict[str, str]:
+    """run_id -> column label: policy/space/encoder, plus any LABEL_FIELDS that vary within that method."""
+    by_method = defaultdict(list)
+    for r in records:
+        by_method[r["method"]].append(r)
+    labels = {}
+    for method, group in by_method.items():
+        varying = [f for f in LABEL_FIELDS
+                   if len({json.dumps(g["config"].get(f), sort_keys=True) for g in group}) > 1]
+        for r in group:
+            suffix = " ".join(f"{f}={_short(r['config'].get(f))}" for f in varying)
+            labels[r["run_id"]] = f"{method} {suffix}".strip()
+    return labels
+
+
+def _short(value) -> str:
+    return f"{value:g}" if isinstance(value, float) else json.dumps(value) if isinstance(value, dict) else str(value)
+
+
+def pooled_cells(records: list[dict], perturbation: str = "none", demos: int | None = None
+                 ) -> dict[str, dict[str, Cell]]:
+    """{task: {label: Cell}} pooling seeds; `demos` None = each task's largest demo count."""
+    labels = method_labels(records)
+    most = defaultdict(int)
+    for r in records:
+        most[r["task"]] = max(most[r["task"]], r["config"]["demos"])
+    cells: dict[str, dict[str, list[int]]] = defaultdict(lambda: defaultdict(lambda: [0, 0]))
+    for r in records:
+        wanted = most[r["task"]] if demos is None else demos
+        evaluation = r["evaluations"].get(perturbation)
+        if r["config"]["demos"] != wanted or evaluation is None:
+            continue
+        cell = cells[r["task"]][labels[r["run_id"]]]
+        cell[0] += evaluation["successes"]
+        cell[1] += evaluation["episodes"]
+    return {t: {m: Cell(*c) for m, c in row.items()} for t, row in cells.items()}
+
+
+def rates(cells: dict[str, dict[str, Cell]]) -> dict[str, dict[str, float]]:
+    return {t: {m: c.rate for m, c in row.items()} for t, row in cells.items()}
+
+
+# ---- rendering -------------------------------------------------------------------------------------------
+
+
+def _marks(row: dict[str, float]) -> dict[str, str]:
+    """'best' / 'second' per method of one task (ties share the mark)."""
+    distinct = sorted(set(row.values()), reverse=True)
+    marks = {}
+    for method, value in row.items():
+        if value == distinct[0]:
+            marks[method] = "best"
+        elif len(distinct) > 1 and value == distinct[1]:
+            marks[method] = "second"
+    return marks
+
+
+def _summary_marks(summary: dict[str, dict], key: str, lower_is_better: bool) -> dict[str, str]:
+    sign = -1 if lower_is_better else 1
+    return _marks({m: sign * round(s[key], 2) for m, s in summary.items()})
+
+
+def table_rows(table: dict[str, dict[str, float]], cells: dict[str, dict[str, Cell]] | None = None):
+    """(header, rows) where each cell is (text, mark); the last two rows are Mean S.R. and Mean Rank."""
+    methods = sorted({m for row in table.values() for m in row})
+    summary = summarize(table)
+    n_tasks = len(table)
+    rows = []
+    for task, row in table.items():
+        marks = _marks(row)
+        out = []
+        for m in methods:
+            if m not in row:
+                out.append(("—", None))
+                continue
+            text = f"{row[m]:.2f}"
+            if cells is not None:
+                lo, hi = cells[task][m].ci95
+                text += f" [{lo:.2f}, {hi:.2f}] ({cells[task][m].successes}/{cells[task][m].episodes})"
+            out.append((text, marks.get(m)))
+        rows.append((task, out))
+    for key, title, lower in (("mean_sr", "Mean S.R.", False), ("mean_rank", "Mean Rank", True)):
+        marks = _summary_marks(summary, key, lower)
+        rows.append((title, [(f"{summary[m][key]:.2f}" + ("*" if summary[m]["tasks"] < n_tasks else ""),
+                              marks.get(m)) for m in methods]))
+    return ["task", *methods], rows
+
+
+def markdown_table(header, rows) -> str:
+    def fmt(text, mark):
+        return f"**{text}**" if mark == "best" else f"<u>{text}</u>" if mark == "second" else text
+
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join([task, *(fmt(*c) for c in cells)]) + " |" for task, cells in rows]
+    return "\n".join(lines)
+
+
+def html_table(header, rows) -> str:
+    def fmt(text, mark):
+        text = html.escape(text)
+        return f"<b>{text}</b>" if mark == "best" else f"<u>{text}</u>" if mark == "second" else text
+
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
+    body = "".join("<tr><td>" + html.escape(task) + "</td>" + "".join(f"<td>{fmt(*c)}</td>" for c in cells)
+                   + "</tr>" for task, cells in rows)
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def _figure_png(fig) -> bytes:
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110, bbox_inches="tight")
+    return buffer.getvalue()
+
+
+def bar_chart(cells: dict[str, dict[str, Cell]]) -> bytes:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tasks = list(cells)
+    cols = min(3, len(tasks))
+    fig, axes = plt.subplots(math.ceil(len(tasks) / cols), cols, figsize=(4.5 * cols, 3.2 * math.ceil(len(tasks) / cols)),
+                             squeeze=False)
+    for ax, task in zip(axes.flat, tasks):
+        methods = sorted(cells[task])
+        values = [cells[task][m].rate for m in methods]
+        errors = [[v - cells[task][m].ci95[0] for m, v in zip(methods, values)],
+                  [cells[task][m].ci95[1] - v for m, v in zip(methods, values)]]
+        ax.bar(range(len(methods)), values, yerr=errors, capsize=3, color=[f"C{i}" for i in range(len(methods))])
+        ax.set_xticks(range(len(methods)), methods, rotation=30, ha="right", fontsize=7)
+        ax.set_ylim(0, 1)
+        ax.set_title(task, fontsize=9)
+        ax.set_ylabel("success rate (95% CI)", fontsize=8)
+    for ax in list(axes.flat)[len(tasks):]:
+        ax.axis("off")
+    fig.tight_layout()
+    png = _figure_png(fig)
+    plt.close(fig)
+    return png
+
+
+def curve_chart(series: dict[str, list[tuple[float, float]]], xlabel: str, title: str, log_x: bool = False) -> bytes:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 3.5))
+    for method, points in sorted(series.items()):
+        xs, ys = zip(*sorted(points))
+        ax.plot(xs, ys, marker="o", label=method)
+    if log_x:
+        ax.set_xscale("log")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("mean success rate over tasks")
+    ax.set_ylim(0, 1)
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    png = _figure_png(fig)
+    plt.close(fig)
+    return png
+
+
+def perturbation_series(records: list[dict]) -> dict[str, dict[str, list[tuple[float, float]]]]:
+    """{kind: {method: [(value, mean success rate over tasks)]}}, the nominal scene included at its value."""
+    names = sorted({p for r in records for p in r["evaluations"] if p != "none"})
+    curves: dict[str, dict[str, list[tuple[float, float]]]] = defaultdict(lambda: defaultdict(list))
+    for name in names:
+        pert = parse_perturbation(name)
+        for method, value in _mean_over_tasks(pooled_cells(records, name)).items():
+            curves[pert.kind][method].append((pert.scalar, value))
+    for kind, by_method in curves.items():
+        nominal = NOMINAL_VALUE[kind]
+        if nominal is not None:
+            for method, value in _mean_over_tasks(pooled_cells(records, "none")).items():
+                if method in by_method:
+                    by_method[method].append((nominal, value))
+    return curves
+
+
+def demo_series(records: list[dict]) -> dict[str, list[tuple[float, float]]]:
+    counts = sorted({r["config"]["demos"] for r in records})
+    series = defaultdict(list)
+    for n in counts:
+        for method, value in _mean_over_tasks(pooled_cells(records, "none", demos=n)).items():
+            series[method].append((n, value))
+    return series
+
+
+def _mean_over_tasks(cells: dict[str, dict[str, Cell]]) -> dict[str, float]:
+    return {m: s["mean_sr"] for m, s in summarize(rates(cells)).items()}
+
+
+def build_report(records: list[dict], published: dict[str, dict[str, float]] | None = None,
+                 published_name: str = "published") -> dict:
+    """Everything the report shows: tables (header, rows), PNG figures and the JSON summary."""
+    if not records and not published:
+        raise ReportError("nothing to report: no results records and no --table")
+    sections, figures, summary = [], {}, {}
+    if records:
+        cells = pooled_cells(records)
+        table = rates(cells)
+        sections.append(("Success rate per task (held-out seeds, seeds pooled, 95% Wilson interval, successes/episodes)",
+                         table_rows(table, cells)))
+        summary["results"] = summarize(table)
+        figures["success_by_task.png"] = ("Success rate per task", bar_chart(cells))
+        for kind, series in perturbation_series(records).items():
+            figures[f"generalization_{kind}.png"] = (f"Zero-shot {kind}",
+                                                     curve_chart(series, kind, f"Zero-shot generalization: {kind}"))
+        if len({r["config"]["demos"] for r in records}) > 1:
+            figures["sample_efficiency.png"] = ("Sample efficiency",
+                                                curve_chart(demo_series(records), "demonstrations",
+                                                            "Sample efficiency", log_x=True))
+    if published:
+        sections.append((f"Published table ({published_name})", table_rows(published)))
+        summary["published"] = summarize(published)
+        if records:
+            shared = [t for t in table if t in published]
+            if shared:
+                combined = {t: {**{f"{m} ({published_name})": v for m, v in published[t].items()}, **table[t]}
+                            for t in shared}
+                sections.append((f"Side by side on the shared tasks ({', '.join(shared)})", table_rows(combined)))
+    return {"sections": sections, "figures": figures, "summary": summary}
+
+
+def write_report(report: dict, out: Path, title: str = "OBSBench report", notes: str = "") -> dict[str, Path]:
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    for name, (_, png) in report["figures"].items():
+        (out / name).write_bytes(png)
+    md = [f"# {title}", "", notes, ""] if notes else [f"# {title}", ""]
+    body = [f"<h1>{html.escape(title)}</h1>"] + ([f"<p>{html.escape(notes)}</p>"] if notes else [])
+    for heading, (header, rows) in report["sections"]:
+        md += [f"## {heading}", "", markdown_table(header, rows), ""]
+        body += [f"<h2>{html.escape(heading)}</h2>", html_table(header, rows)]
+    legend = ("Best per row in bold, second underlined. Mean Rank: competition ranking per task (ties share the "
+              "best rank), averaged over tasks; * = the method lacks some tasks (means over its tasks).")
+    md += [legend, ""]
+    body.append(f"<p>{html.escape(legend)}</p>")
+    for name, (caption, png) in report["figures"].items():
+        md += [f"## {caption}", "", f"![{caption}]({name})", ""]
+        data = base64.b64encode(png).decode()
+        body += [f"<h2>{html.escape(caption)}</h2>", f'<img alt="{html.escape(caption)}" src="data:image/png;base64,{data}">']
+    style = ("body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}td,th{border:1px solid #ccc;"
+             "padding:4px 8px;text-align:right}td:first-child,th:first-child{text-align:left}")
+    (out / "report.md").write_text("\n".join(md))
+    (out / "report.html").write_text(f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}"
+                                     f"</title><style>{style}</style></head><body>{''.join(body)}</body></html>\n")
+    return {"markdown": out / "report.md", "html": out / "report.html"}
+
+
+def summary_json(report: dict) -> dict:
+    return {source: {m: {"mean_sr": round(s["mean_sr"], 4), "mean_rank": round(s["mean_rank"], 4), "tasks": s["tasks"]}
+                     for m, s in summary.items()} for source, summary in report["summary"].items()}

@@ -1,0 +1,133 @@
+"""Report math (competition ranking, Mean S.R. / Mean Rank, pooled Wilson intervals), the published-table
+reader, the results store's handling of corrupted lines, and the rendered Markdown / HTML / PNG / JSON."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from lerobot_obsbench.bench.report import (
+    Cell,
+    ReportError,
+    build_report,
+    competition_ranks,
+    pooled_cells,
+    read_published,
+    summarize,
+    summary_json,
+    write_report,
+)
+from lerobot_obsbench.bench.results import append_result, read_results
+from lerobot_obsbench.cli import main
+from lerobot_obsbench.stats import wilson_interval
+
+
+def test_competition_ranking_1224():
+    assert competition_ranks({"a": 0.9, "b": 0.5, "c": 0.5, "d": 0.1}) == {"a": 1, "b": 2, "c": 2, "d": 4}
+    assert competition_ranks({"a": 0.3, "b": 0.3, "c": 0.3}) == {"a": 1, "b": 1, "c": 1}
+
+
+def test_mean_sr_and_mean_rank_by_hand():
+    table = {"t1": {"A": 0.80, "B": 0.60, "C": 0.60},
+             "t2": {"A": 0.10, "B": 0.30, "C": 0.20},
+             "t3": {"A": 0.00, "B": 0.00, "C": 0.50}}
+    summary = summarize(table)
+    # A: ranks 1, 3, 2 ; B: 2, 1, 2 ; C: 2, 2, 1
+    assert summary["A"]["mean_rank"] == pytest.approx(2.0)
+    assert summary["B"]["mean_rank"] == pytest.approx(5 / 3)
+    assert summary["C"]["mean_rank"] == pytest.approx(5 / 3)
+    assert summary["A"]["mean_sr"] == pytest.approx(0.3)
+    assert summary["C"]["mean_sr"] == pytest.approx(1.3 / 3)
+
+
+def test_published_table_csv(tmp_path):
+    path = tmp_path / "table.csv"
+    path.write_text("task,ResNet50,PointNet\nPickCube,0.10,0.30\nStackCube,0.05,\n")
+    table = read_published(path)
+    assert table == {"PickCube": {"ResNet50": 0.10, "PointNet": 0.30}, "StackCube": {"ResNet50": 0.05}}
+    summary = summarize(table)
+    assert summary["PointNet"]["tasks"] == 1 and summary["ResNet50"]["mean_sr"] == pytest.approx(0.075)
+    for body, words in (("task,A\nt1,abc\n", ["table.csv:2", "'abc'"]), ("task,A\nt1,45\n", [":2", "[0, 1]"]),
+                        ("task,A,B\nt1,0.1\n", [":2", "2 cells"])):
+        path.write_text(body)
+        with pytest.raises(ReportError) as err:
+            read_published(path)
+        for word in words:
+            assert word in str(err.value)
+
+
+def record(run_id, task, space, successes, episodes=10, seed=0, demos=10, lr=1e-4, evaluations=None):
+    config = {"task": task, "obs_space": space, "encoder": "e", "policy": "obs_act", "seed": seed, "lr": lr,
+              "demos": demos, "preset": "cpu", "steps": 5, "epochs": None, "image_size": 64,
+              "policy_overrides": {}}
+    base = {"successes": successes, "episodes": episodes, "success_rate": successes / episodes}
+    return {"run_id": run_id, "config": config, "method": f"obs_act/{space}/e", "task": task,
+            "evaluations": {"none": base, **(evaluations or {})}}
+
+
+def test_results_store_reports_corrupted_lines_and_never_merges_lines(tmp_path):
+    path = tmp_path / "results.jsonl"
+    append_result(path, record("a", "T", "rgb", 3))
+    with open(path, "a") as f:
+        f.write('{"run_id": "b", "config": {')  # a kill in the middle of a write
+    append_result(path, record("c", "T", "rgb", 4))
+    with open(path, "a") as f:
+        f.write('{"no_id": 1}\n')
+    warnings = []
+    records = read_results(path, warn=warnings.append)
+    assert [r["run_id"] for r in records] == ["a", "c"]
+    assert len(warnings) == 2
+    assert "results.jsonl:2: corrupted results line skipped" in warnings[0]
+    assert "results.jsonl:4" in warnings[1] and "run_id" in warnings[1]
+
+
+def test_seeds_pool_into_one_wilson_interval():
+    records = [record("a", "T", "rgb", 3, seed=0), record("b", "T", "rgb", 5, seed=1),
+               record("c", "T", "pointcloud", 9, seed=0)]
+    cells = pooled_cells(records)
+    assert cells["T"]["obs_act/rgb/e"] == Cell(8, 20)
+    assert cells["T"]["obs_act/rgb/e"].ci95 == wilson_interval(8, 20)
+    lo, hi = wilson_interval(8, 20)
+    assert 0.2 < lo < 0.4 < hi < 0.65  # independent sanity: Wilson 95% for 8/20 is about [0.22, 0.61]
+
+
+def test_varying_learning_rates_become_separate_columns():
+    records = [record("a", "T", "rgb", 3, lr=1e-4), record("b", "T", "rgb", 5, lr=1e-3)]
+    assert set(pooled_cells(records)["T"]) == {"obs_act/rgb/e lr=0.0001", "obs_act/rgb/e lr=0.001"}
+
+
+def test_report_files(tmp_path):
+    light = {"light:0.03": {"successes": 1, "episodes": 10}}
+    records = [record("a", "T1", "rgb", 2, evaluations=light), record("b", "T1", "pointcloud", 8, evaluations=light),
+               record("c", "T2", "rgb", 6), record("d", "T2", "pointcloud", 6),
+               record("e", "T1", "rgb", 1, demos=5), record("f", "T1", "pointcloud", 4, demos=5)]
+    published = tmp_path / "paper.csv"
+    published.write_text("task,ResNet50\nT1,0.25\nT9,0.5\n")
+    report = build_report(records, read_published(published), published_name="paper")
+    paths = write_report(report, tmp_path / "rep")
+    md = paths["markdown"].read_text()
+    assert "**0.80 [" in md and "<u>0.20 [" in md  # T1: pointcloud best (bold), rgb second (underlined)
+    assert "| Mean S.R. | **0.70** | <u>0.40</u> |" in md
+    assert "| Mean Rank | **1.00** | <u>1.50</u> |" in md  # T2 tie: both rank 1
+    assert "Side by side on the shared tasks (T1)" in md and "ResNet50 (paper)" in md
+    page = paths["html"].read_text()
+    assert page.count("data:image/png;base64,") == 3  # bars, light curve, sample efficiency
+    assert "<b>0.80" in page
+    for name in ("success_by_task.png", "generalization_light.png", "sample_efficiency.png"):
+        assert (tmp_path / "rep" / name).read_bytes()[:4] == b"\x89PNG"
+    summary = summary_json(report)
+    assert summary["results"]["obs_act/pointcloud/e"] == {"mean_sr": 0.7, "mean_rank": 1.0, "tasks": 2}
+    assert summary["published"]["ResNet50"]["mean_sr"] == pytest.approx(0.375)
+
+
+def test_report_cli_with_published_table_only(tmp_path, capsys):
+    table = tmp_path / "t.csv"
+    table.write_text("task,A,B\nt1,0.5,0.7\nt2,0.3,0.1\n")
+    assert main(["report", "--table", str(table), "--out", str(tmp_path / "r"), "--json", str(tmp_path / "s.json")]) == 0
+    summary = json.loads((tmp_path / "s.json").read_text())["published"]
+    assert summary == {"A": {"mean_sr": 0.4, "mean_rank": 1.5, "tasks": 2}, "B": {"mean_sr": 0.4, "mean_rank": 1.5, "tasks": 2}}
+    assert "Mean S.R." in capsys.readouterr().out
+    table.write_text("task,A\nt1,x\n")
+    assert main(["report", "--table", str(table)]) == 2
+    assert "t.csv:2" in capsys.readouterr().err
