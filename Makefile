@@ -16,9 +16,12 @@ $(STAMP): pyproject.toml scripts/setup_system.sh
 
 install: $(STAMP)
 
-# README main job: the smallest real end-to-end training run (synthetic schema dataset -> lerobot-train).
+# README main job: the `quick` benchmark grid (demos -> lerobot-train -> eval on held-out seeds -> report).
+# Resumable: rerunning after an interruption skips finished runs.
 main: $(STAMP)
-	$(BIN)/python scripts/quick_train.py
+	$(BIN)/obsbench run quick --out outputs/bench/quick
+	$(BIN)/obsbench report outputs/bench/quick/results.jsonl --title "OBSBench quick (CPU smoke test)" \
+		--json outputs/bench/quick/summary.json
 
 # README test command: the whole suite, fast tests first, then the slow end-to-end ones.
 test: $(STAMP)

@@ -42,6 +42,17 @@ def cluttered_frames(synthetic, n: int, size: int, seed: int = 0) -> dict[str, n
     return {"rgb": np.stack(rgbs), "depth": np.stack(depths), "K": K, "cam2world": cam2world}
 
 
+def sensor_batch(frames: dict[str, np.ndarray], device) -> dict[str, torch.Tensor]:
+    """`cluttered_frames` as the batch LeRobot's loader gives the policy (float CHW rgb, int depth, K, pose)."""
+    n = len(frames["rgb"])
+    return {
+        f"observation.images.{CAM}": torch.tensor(frames["rgb"]).permute(0, 3, 1, 2).float().div(255).to(device),
+        f"observation.depth.{CAM}": torch.tensor(frames["depth"].astype(np.int64)).to(device),
+        f"observation.intrinsics.{CAM}": torch.tensor(frames["K"], dtype=torch.float32).expand(n, 3, 3).to(device),
+        f"observation.cam2world.{CAM}": torch.tensor(frames["cam2world"], dtype=torch.float32).expand(n, 4, 4).to(device),
+    }
+
+
 def numpy_reference(rgb, depth, K, cam2world, voxel=0.005, n_seeds=2048, k=16, libraries=False):
     """One frame, plain NumPy: returns seed xyz (S, 3), neighbour indices (S, k) and the voxel count.
 
@@ -93,12 +104,7 @@ def main() -> None:
     synthetic = load_synthetic()
     frames = cluttered_frames(synthetic, args.batch, args.size)
     device = torch.device(args.device)
-    batch = {
-        f"observation.images.{CAM}": torch.tensor(frames["rgb"]).permute(0, 3, 1, 2).float().div(255).to(device),
-        f"observation.depth.{CAM}": torch.tensor(frames["depth"].astype(np.int64)).to(device),
-        f"observation.intrinsics.{CAM}": torch.tensor(frames["K"], dtype=torch.float32).expand(args.batch, 3, 3).to(device),
-        f"observation.cam2world.{CAM}": torch.tensor(frames["cam2world"], dtype=torch.float32).expand(args.batch, 4, 4).to(device),
-    }
+    batch = sensor_batch(frames, device)
     adapter = ObservationAdapter("pointcloud", [CAM], workspace=WORKSPACE, voxel_size=0.005).eval().to(device)
 
     def run_plugin():

@@ -115,7 +115,9 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     grid = load_grid(args.grid)
     out = args.out or Path("outputs") / "bench" / grid.name
-    failures = run_grid(grid, out, workers=args.workers, device=args.device, dry_run=args.dry_run)
+    loader_workers = args.loader_workers if args.loader_workers is not None else (0 if args.device == "cpu" else 4)
+    failures = run_grid(grid, out, workers=args.workers, device=args.device, dry_run=args.dry_run,
+                        loader_workers=loader_workers)
     if failures:
         print(f"{failures} run(s) failed (see the messages above); rerun the same command to retry them.")
         return 1
@@ -216,6 +218,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=None, help="output directory (default outputs/bench/<grid name>)")
     p.add_argument("--workers", type=int, default=1, help="runs executed in parallel local processes")
     p.add_argument("--device", default="cpu", help="torch device for training and evaluation (cpu, cuda)")
+    p.add_argument("--loader-workers", type=int, default=None,
+                   help="DataLoader workers per training run (default: 0 on cpu, 4 on a GPU)")
     p.add_argument("--dry-run", action="store_true", help="print the runs still to do and a rough cost; run nothing")
     p.set_defaults(func=cmd_run)
 

@@ -14,21 +14,31 @@ BASE = {"tasks": ["PushCube-v1"], "obs_spaces": ["rgb", "pointcloud"], "steps": 
 
 
 def test_presets_expand_and_validate():
-    assert {"quick", "paper-main", "paper-sample-efficiency", "paper-generalization"} <= set(preset_grids())
+    assert {"quick", "paper-main", "paper-sample-efficiency", "paper-generalization", "paper-design"} <= set(
+        preset_grids())
     sizes = {}
     for name in preset_grids():
         runs = load_grid(name).expand()
         assert runs, name
         assert len({r.run_id for r in runs}) == len(runs), f"{name}: two runs share an id"
         sizes[name] = runs
-    # paper-main: 3 tasks x (rgb, rgbd with resnet50; pointcloud with pointnet) x 2 policies x 3 lrs x 3 seeds
-    assert len(sizes["paper-main"]) == 3 * 3 * 2 * 3 * 3
-    assert {r.encoder for r in sizes["paper-main"] if r.obs_space == "pointcloud"} == {"pointnet"}
+    # paper-main: 3 tasks x 7 (space, encoder) pairs of Table 2 x 2 policies x 3 lrs x 3 seeds
+    assert len(sizes["paper-main"]) == 3 * 7 * 2 * 3 * 3
+    pairs = {(r.obs_space, r.encoder) for r in sizes["paper-main"]}
+    assert pairs == {("rgb", "resnet50"), ("rgb", "vit_b"), ("rgbd", "resnet50"), ("rgbd", "vit_b"),
+                     ("rgbd", "multivit_b"), ("pointcloud", "pointnet"), ("pointcloud", "spunet34")}
     assert {r.demos for r in sizes["paper-sample-efficiency"]} == {10, 25, 100}
     assert all(r.preset == "paper" and r.eval_episodes == 400 for r in sizes["paper-main"])
     assert len(sizes["paper-generalization"][0].perturbations) == 20
     quick = sizes["quick"]
     assert {"rgb", "rgbd", "pointcloud"} <= {r.obs_space for r in quick}
+
+
+def test_variants_are_an_axis_and_a_column_label():
+    runs = parse_grid({**BASE, "obs_spaces": ["pointcloud"],
+                       "variants": [{}, {"sampling": "pre"}, {"point_features": "xyz"}]}).expand()
+    assert [dict(r.policy_overrides) for r in runs] == [{}, {"sampling": "pre"}, {"point_features": "xyz"}]
+    assert len({r.run_id for r in runs}) == 3
 
 
 def test_run_id_is_a_hash_of_the_resolved_config():
@@ -52,6 +62,8 @@ def test_run_id_is_a_hash_of_the_resolved_config():
     ({"epochs": 3}, ["exactly one", "steps", "epochs"]),
     ({"perturbations": ["lighting:0.3"]}, ["lighting:0.3", "camera_yaw:DEG", "light:I"]),
     ({"perturbations": ["background:2,0,0"]}, ["background:2,0,0", "[0, 1]"]),
+    ({"variants": [{}, {"sampling": "pre"}]}, ["obs_act/rgb/resnet18", "sampling='pre'", "point-cloud design"]),
+    ({"policy_overrides": {"chunk_sise": 5}}, ["no fields ['chunk_sise']"]),
 ])
 def test_bad_grids_fail_with_the_valid_choices(change, words):
     with pytest.raises(GridError) as err:

@@ -8,16 +8,19 @@ import torchvision
 
 from lerobot_obsbench.encoders import available_encoders, encoder_info, make_encoder
 from lerobot_obsbench.encoders.pointnet import sine_embedding_3d
+from lerobot_obsbench.encoders.pretrained import CheckpointError
 from lerobot_obsbench.spaces import ObservationAdapter, PointCloud
 from tests.helpers import CAM, frame_batch
 
 
 def test_registry_declares_spaces_and_refuses_wrong_pairs():
-    assert {"resnet18", "resnet50", "pointnet"} <= set(available_encoders())
-    assert available_encoders("pointcloud") == ["pointnet"]
-    assert "pointnet" not in available_encoders("rgb")
+    assert set(available_encoders()) == {"resnet18", "resnet50", "vit_b", "multivit_b", "pointnet", "spunet34"}
+    assert available_encoders("pointcloud") == ["pointnet", "spunet34"]
+    assert available_encoders("rgbd") == ["multivit_b", "resnet18", "resnet50", "vit_b"]
+    assert "pointnet" not in available_encoders("rgb") and "multivit_b" not in available_encoders("rgb")
     assert set(encoder_info("resnet18").spaces) == {"rgb", "depth", "rgbd", "pointmap"}
-    with pytest.raises(ValueError, match=r"does not accept obs_space='rgb'.*Encoders for 'rgb': resnet18, resnet50"):
+    assert set(encoder_info("vit_b").spaces) == {"rgb", "depth", "rgbd", "pointmap"}
+    with pytest.raises(ValueError, match=r"does not accept obs_space='rgb'.*Encoders for 'rgb': resnet18, resnet50, vit_b"):
         make_encoder("pointnet", "rgb")
     with pytest.raises(ValueError, match="Unknown encoder 'vit_h'.*pointnet"):
         make_encoder("vit_h", "rgb")
@@ -57,9 +60,9 @@ def test_pretrained_stem_extra_channels_start_at_zero(tmp_path):
 def test_pretrained_wrong_architecture_is_refused(tmp_path):
     ckpt = tmp_path / "resnet50.pth"
     torch.save(torchvision.models.resnet50(weights=None).state_dict(), ckpt)
-    with pytest.raises(RuntimeError, match="size mismatch"):
+    with pytest.raises(CheckpointError, match="another architecture.*shape mismatches.*layer1.0.conv1.weight"):
         make_encoder("resnet18", "rgb", pretrained=str(ckpt))
-    with pytest.raises(FileNotFoundError, match="neither 'imagenet' nor an existing"):
+    with pytest.raises(CheckpointError, match="is not a file"):
         make_encoder("resnet18", "rgb", pretrained=str(tmp_path / "nope.pth"))
 
 
@@ -80,7 +83,7 @@ def test_imagenet_offline_gives_a_clear_error(monkeypatch, tmp_path):
 
     monkeypatch.setattr(torch.hub, "download_url_to_file", offline)
     monkeypatch.setenv("TORCH_HOME", str(tmp_path))
-    with pytest.raises(RuntimeError, match="--policy.pretrained=/path/to/resnet18.pth"):
+    with pytest.raises(CheckpointError, match="--policy.pretrained=/path/to/resnet18.pth"):
         make_encoder("resnet18", "rgb", pretrained="imagenet")
 
 

@@ -303,3 +303,39 @@ def test_peg_insertion_reports_grasp_align_insert():
     assert info["is_success"] and all(info[f"sub_success/{k}"] for k in ("grasp", "align", "insert"))
     first = {k: next(i for i, h in enumerate(history) if h[f"sub_success/{k}"]) for k in ("grasp", "align", "insert")}
     assert first["grasp"] < first["align"] <= first["insert"], first
+
+
+def test_perturbations_change_what_they_name_and_nothing_else():
+    def first_frame(perturbation):
+        e = ObsBenchEnv("PushCube-v1", image_size=SIZE, perturbation=perturbation)
+        obs, _ = e.reset(seed=0)
+        e.close()
+        return (obs["pixels"]["base_camera"].astype(float), obs["robot_state"]["depth.base_camera"].astype(float),
+                obs["robot_state"]["cam2world.base_camera"])
+
+    rgb, depth, cam2world = first_frame(None)
+    target = np.array([-0.1, 0.0, 0.1])  # PushCube's camera looks at this point from [0.3, 0, 0.6]
+    for name, angle, axes in (("camera_yaw:10", 10, slice(0, 2)), ("camera_pitch:5", 5, slice(0, 3))):
+        _, moved_depth, moved = first_frame(name)
+        a, b = cam2world[:3, 3] - target, moved[:3, 3] - target
+        assert np.linalg.norm(b) == pytest.approx(np.linalg.norm(a), abs=1e-4)
+        # yaw: the angle seen from above (about the vertical through the target); pitch: in the vertical plane
+        u, v = a[axes], b[axes]
+        assert np.degrees(np.arccos(u @ v / np.linalg.norm(u) / np.linalg.norm(v))) == pytest.approx(angle, abs=0.01)
+        # still looking at the target: the optical axis (camera z) points from the eye to it
+        assert moved[:3, 2] @ (-b / np.linalg.norm(b)) == pytest.approx(1.0, abs=1e-4)
+        assert np.abs(moved_depth - depth).mean() > 1.0
+    dark, dark_depth, dark_pose = first_frame("light:0.03")
+    bright, _, _ = first_frame("light:3")
+    assert dark.mean() < 0.6 * rgb.mean() < bright.mean()
+    red, red_depth, _ = first_frame("background:1,0.2,0.2")
+    assert (red[..., 0] - red[..., 1]).mean() > (rgb[..., 0] - rgb[..., 1]).mean() + 30
+    for same in (dark_depth, red_depth):
+        np.testing.assert_array_equal(same, depth)  # visual changes leave geometry untouched
+    np.testing.assert_allclose(dark_pose, cam2world)
+    noisy, noisy_depth, _ = first_frame("noise:2")
+    assert np.abs(noisy - rgb).mean() > 2.0
+    # the ray tracer's depth agrees with the rasterizer's (median within 2 mm; edges and the far floor differ)
+    assert np.median(np.abs(noisy_depth - depth)) <= 2
+    with pytest.raises(ValueError, match="camera_yaw:DEG"):
+        ObsBenchEnvConfig(task="PushCube-v1", perturbation="fog:1")

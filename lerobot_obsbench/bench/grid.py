@@ -120,6 +120,7 @@ class Grid:
     eval_episodes: int = 50
     perturbations: list[str] = field(default_factory=list)
     policy_overrides: dict[str, object] = field(default_factory=dict)
+    variants: list[dict[str, object]] = field(default_factory=lambda: [{}])  # extra --policy.* sets, one axis
     description: str = ""
 
     def budget(self, policy: str) -> tuple[int | None, float | None]:
@@ -129,16 +130,17 @@ class Grid:
 
     def expand(self) -> list[RunSpec]:
         runs = []
-        for task, space, policy, demos, lr, seed in itertools.product(
-                self.tasks, self.obs_spaces, self.policies, self.demos, self.learning_rates, self.seeds):
+        for task, space, policy, variant, demos, lr, seed in itertools.product(
+                self.tasks, self.obs_spaces, self.policies, self.variants, self.demos, self.learning_rates, self.seeds):
             steps, epochs = self.budget(policy)
+            overrides = {**self.policy_overrides, **variant}
             for encoder in self.encoders[space]:
                 runs.append(RunSpec(
                     task=task, obs_space=space, encoder=encoder, policy=policy, seed=seed, lr=lr, demos=demos,
                     preset=self.preset, batch_size=self.batch_size, steps=steps, epochs=epochs,
                     image_size=self.image_size, cameras=tuple(self.cameras), control_mode=self.control_mode,
                     eval_episodes=self.eval_episodes, perturbations=tuple(self.perturbations),
-                    policy_overrides=tuple(sorted(self.policy_overrides.items())),
+                    policy_overrides=tuple(sorted(overrides.items())),
                 ))
         return runs
 
@@ -209,7 +211,8 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
         demos=[int(n) for n in _as_list(values.get("demos", [100]), "demos")], preset=preset,
         encoders=_resolve_encoders(values.get("encoders"), spaces, preset),
         **{k: values[k] for k in ("batch_size", "steps", "epochs", "image_size", "cameras", "control_mode",
-                                  "eval_episodes", "perturbations", "policy_overrides", "description")
+                                  "eval_episodes", "perturbations", "policy_overrides", "variants",
+                                  "description")
            if k in values},
     )
     for policy in policies:
@@ -226,7 +229,38 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
             raise GridError(f"{name}: {err}") from None
     if len(set(grid.perturbations)) != len(grid.perturbations):
         raise GridError(f"{name}: perturbations are listed twice: {grid.perturbations}")
+    if grid.control_mode != "pd_ee_delta_pose":
+        raise GridError(f"{name}: the scripted experts record demos with control_mode pd_ee_delta_pose; got "
+                        f"{grid.control_mode!r}")
+    if not grid.variants or not all(isinstance(v, dict) for v in grid.variants):
+        raise GridError(f"{name}: variants is a list of mappings of --policy.* fields, e.g. [{{}}, {{sampling: pre}}]")
+    check_policy_configs(grid, name)
     return grid
+
+
+def check_policy_configs(grid: Grid, name: str) -> None:
+    """Build each distinct policy config of the grid now, so an unknown field or a value that does not fit the
+    space / encoder (e.g. pre-sampling for rgb) fails before anything runs."""
+    from lerobot.configs.policies import PreTrainedConfig
+
+    from lerobot_obsbench.presets import preset_overrides
+
+    seen = set()
+    for run in grid.expand():
+        key = json.dumps([run.policy, run.obs_space, run.encoder, run.policy_overrides], default=str)
+        if key in seen:
+            continue
+        seen.add(key)
+        config_class = PreTrainedConfig.get_choice_class(run.policy)
+        fields = {**preset_overrides(run.preset, run.policy, run.obs_space), "encoder": run.encoder,
+                  **dict(run.policy_overrides)}
+        unknown = sorted(set(fields) - set(config_class.__dataclass_fields__))
+        if unknown:
+            raise GridError(f"{name}: {run.policy} has no fields {unknown} (policy_overrides / variants)")
+        try:
+            config_class(obs_space=run.obs_space, device="cpu", **fields)
+        except (ValueError, TypeError) as err:
+            raise GridError(f"{name}: {run.method} with {dict(run.policy_overrides)}: {err}") from None
 
 
 def preset_grids() -> list[str]:
@@ -252,8 +286,9 @@ def load_grid(path_or_preset: str | Path) -> Grid:
     return parse_grid(data, name=path.stem)
 
 
-# Rough CPU costs (2-core machine, measured with the presets at 64-128 px) for `--dry-run` estimates only.
-SECONDS_PER_SAMPLE = {"tiny": 0.004, "cpu": 0.02, "paper": 0.4}
+# Rough 2-core CPU costs per training sample (cpu: measured on the quick grid at 64 px, ~0.25 s per batch of 16)
+# for `--dry-run` estimates only.
+SECONDS_PER_SAMPLE = {"tiny": 0.01, "cpu": 0.017, "paper": 0.4}
 DEMO_FRAMES_PER_EPISODE = 30
 ENV_STEPS_PER_SECOND = 15.0
 
@@ -261,7 +296,7 @@ ENV_STEPS_PER_SECOND = 15.0
 def estimate_seconds(run: RunSpec) -> float:
     """Order-of-magnitude wall time of one run on a 2-core CPU (training + every evaluation)."""
     steps = run.steps or math.ceil(run.epochs * run.demos * DEMO_FRAMES_PER_EPISODE / run.batch_size)
-    train = steps * run.batch_size * SECONDS_PER_SAMPLE[run.preset] * (run.image_size / 128) ** 2 + 20
+    train = steps * run.batch_size * SECONDS_PER_SAMPLE[run.preset] * max(run.image_size / 64, 1) ** 2 + 20
     evaluations = 1 + len(run.perturbations)
     episode = task_spec(run.task).max_steps * 0.6 / ENV_STEPS_PER_SECOND
     return train + evaluations * (run.eval_episodes * episode + 5)

@@ -95,7 +95,8 @@ def training_steps(run: RunSpec, dataset: Path) -> int:
     return max(1, math.ceil(run.epochs * sum(lengths) / run.batch_size))
 
 
-def train_command(run: RunSpec, dataset: Path, output_dir: Path, steps: int, device: str) -> list[str]:
+def train_command(run: RunSpec, dataset: Path, output_dir: Path, steps: int, device: str,
+                  loader_workers: int = 0) -> list[str]:
     from lerobot_obsbench.presets import preset_args
 
     overrides = [f"--policy.{k}={_cli_value(v)}" for k, v in run.policy_overrides]
@@ -108,7 +109,7 @@ def train_command(run: RunSpec, dataset: Path, output_dir: Path, steps: int, dev
         "--dataset.repo_id=local/obsbench", f"--dataset.root={dataset}",
         f"--dataset.episodes=[{','.join(str(i) for i in range(run.demos))}]",
         f"--seed={run.seed}", f"--batch_size={run.batch_size}", f"--steps={steps}", f"--save_freq={steps}",
-        f"--log_freq={max(steps // 20, 1)}", "--num_workers=1", "--wandb.enable=false",
+        f"--log_freq={max(steps // 20, 1)}", f"--num_workers={loader_workers}", "--wandb.enable=false",
         f"--output_dir={output_dir}", f"--job_name=obsbench_{run.run_id}",
     ]
 
@@ -122,7 +123,7 @@ def _evaluation_summary(result: dict) -> dict:
     return {k: result[k] for k in keys}
 
 
-def execute_run(config: dict, dataset: str, out_dir: str, device: str = "cpu") -> dict:
+def execute_run(config: dict, dataset: str, out_dir: str, device: str = "cpu", loader_workers: int = 0) -> dict:
     """Train and evaluate one run from scratch; returns its results record (does not write it)."""
     from lerobot_obsbench.envs.evaluate import evaluate
 
@@ -134,7 +135,7 @@ def execute_run(config: dict, dataset: str, out_dir: str, device: str = "cpu") -
     steps = training_steps(run, Path(dataset))
     start = time.time()
     with open(root / "train.log", "w") as log:
-        done = subprocess.run(train_command(run, Path(dataset), root / "train", steps, device), stdout=log,
+        done = subprocess.run(train_command(run, Path(dataset), root / "train", steps, device, loader_workers), stdout=log,
                               stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, preexec_fn=_die_with_parent,
                               env={**os.environ, "HF_HUB_OFFLINE": "1"})
     train_s = time.time() - start
@@ -173,8 +174,9 @@ def plan(grid: Grid, out: Path) -> tuple[list[RunSpec], list[RunSpec]]:
 
 
 def run_grid(grid: Grid, out: Path, workers: int = 1, device: str = "cpu", dry_run: bool = False,
-             echo=print) -> int:
-    """Run every unfinished run of `grid`; returns the number of failed runs."""
+             loader_workers: int = 0, echo=print) -> int:
+    """Run every unfinished run of `grid`; returns the number of failed runs. `loader_workers` is LeRobot's
+    DataLoader `num_workers` per run (0 is fastest on a 2-core CPU, where a worker competes with training)."""
     out = Path(out)
     runs, todo = plan(grid, out)
     estimate = sum(estimate_seconds(r) for r in todo)
@@ -189,19 +191,19 @@ def run_grid(grid: Grid, out: Path, workers: int = 1, device: str = "cpu", dry_r
     started = time.time()
     jobs = [(run, str(datasets[run.demo_key])) for run in todo]
     if workers <= 1:
-        outcomes = ((run, _attempt(run, dataset, out, device)) for run, dataset in jobs)
+        outcomes = ((run, _attempt(run, dataset, out, device, loader_workers)) for run, dataset in jobs)
         failures = _collect(outcomes, out, len(jobs), started, echo)
     else:
         with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_die_with_parent) as pool:
-            futures = {pool.submit(_attempt, run, dataset, out, device): run for run, dataset in jobs}
+            futures = {pool.submit(_attempt, run, dataset, out, device, loader_workers): run for run, dataset in jobs}
             outcomes = ((futures[f], f.result()) for f in as_completed(futures))
             failures = _collect(outcomes, out, len(jobs), started, echo)
     return failures
 
 
-def _attempt(run: RunSpec, dataset: str, out: Path, device: str) -> dict | str:
+def _attempt(run: RunSpec, dataset: str, out: Path, device: str, loader_workers: int) -> dict | str:
     try:
-        return execute_run(run.config(), dataset, str(out), device)
+        return execute_run(run.config(), dataset, str(out), device, loader_workers)
     except Exception as err:  # noqa: BLE001  (one failed run must not stop the others; reported below)
         return f"{type(err).__name__}: {err}"
 

@@ -1,16 +1,21 @@
-"""PointNet encoder and the point tokenizer (DESIGN §4).
+"""Point-cloud encoders: a per-point backbone (PointNet, or the sparse U-Net of `spunet.py`) plus the paper's
+point tokenizer (DESIGN §4), one class for both backbones.
 
-PointNet here is a shared per-point MLP 64-64-64-128-512 with BatchNorm, applied to the valid points only
-(padding never enters the BatchNorm statistics). That is exactly the paper's kernel-1 convolution over voxels:
-a 1x1 convolution is a per-point linear map, and voxel sampling already left one point per voxel.
+PointNet is the paper's: five kernel-1 sparse convolutions 64-64-64-128-512 without bias, each followed by
+BatchNorm (eps 1e-3, momentum 0.01) and ReLU. Here it is a shared per-point MLP with exactly those weights,
+applied to the valid points only (padding never enters the BatchNorm statistics). The two are the same map: a
+kernel-1 convolution over voxels multiplies each voxel's feature by one matrix, independent of its neighbours,
+and voxel sampling already left one point per voxel.
 
 Tokens for ACT:
-- post-sampling (paper default): encode every point, then FPS `num_tokens` seeds, group each seed's `knn`
-  nearest points as (relative xyz ‖ point feature) -> Linear -> BN -> ReLU -> max-pool: one token per seed;
-- pre-sampling: the same grouping on the raw points (relative xyz ‖ input features), the PointNet MLP on every
-  grouped point, max-pool, then a linear projection to the token size.
-Each token's position is a 3D sine embedding of its seed. Global feature for Diffusion: a max-pool over all
-encoded points (post) or over the seed tokens (pre).
+- post-sampling (paper default): the backbone encodes every point, then FPS picks `num_tokens` seeds and each
+  seed's `knn` nearest points are grouped as (relative xyz ‖ point feature) -> Linear -> BN -> ReLU -> max-pool:
+  one token per seed;
+- pre-sampling: the same grouping on the raw points (relative xyz ‖ input features -> Linear to the input
+  width -> BN -> ReLU -> max-pool) gives one input point per seed; the backbone encodes those seeds and a
+  linear map makes them tokens.
+Each token's position is a 3D sine embedding of its seed. Global feature for Diffusion: a max-pool over the
+encoded points (post) or seeds (pre).
 """
 
 from __future__ import annotations
@@ -46,12 +51,24 @@ def sine_embedding_3d(xyz: Tensor, dim: int, temperature: float = 10000.0, scale
     return nn.functional.pad(emb, (0, dim - emb.shape[-1]))
 
 
-def shared_mlp(in_channels: int, widths: tuple[int, ...] = POINTNET_WIDTHS) -> nn.Sequential:
-    layers: list[nn.Module] = []
-    for width in widths:
-        layers += [nn.Linear(in_channels, width), nn.BatchNorm1d(width), nn.ReLU(inplace=True)]
-        in_channels = width
-    return nn.Sequential(*layers)
+def norm_relu(width: int) -> list[nn.Module]:
+    return [nn.BatchNorm1d(width, eps=1e-3, momentum=0.01), nn.ReLU(inplace=True)]
+
+
+class PointNetBackbone(nn.Module):
+    """(xyz, features (B, N, C), mask) -> (B, N, 512): the paper's PointNet on every valid point."""
+
+    def __init__(self, in_channels: int):
+        super().__init__()
+        layers: list[nn.Module] = []
+        for width in POINTNET_WIDTHS:
+            layers += [nn.Linear(in_channels, width, bias=False), *norm_relu(width)]
+            in_channels = width
+        self.mlp = nn.Sequential(*layers)
+        self.out_channels = POINTNET_WIDTHS[-1]
+
+    def forward(self, xyz: Tensor, features: Tensor, mask: Tensor) -> Tensor:
+        return masked_apply(self.mlp, features, mask)
 
 
 def group(xyz: Tensor, mask: Tensor, num_tokens: int, knn: int) -> tuple[Tensor, Tensor, Tensor, Tensor]:
@@ -78,8 +95,11 @@ def pool_groups(module: nn.Module, grouped: Tensor, seed_mask: Tensor) -> Tensor
     return torch.where(seed_mask[..., None], tokens, tokens[:, :1])
 
 
-class PointNetEncoder(nn.Module):
-    def __init__(self, in_channels: int, output: str, dim: int = 512, sampling: str = "post",
+class PointTokenEncoder(nn.Module):
+    """A per-point backbone + the point tokenizer: ACT tokens (B, S, dim) with 3D sine positions, or one
+    global feature (B, width) for Diffusion Policy."""
+
+    def __init__(self, backbone: nn.Module, in_channels: int, output: str, dim: int = 512, sampling: str = "post",
                  num_tokens: int = 2048, knn: int = 16):
         super().__init__()
         if sampling not in SAMPLING:
@@ -87,17 +107,16 @@ class PointNetEncoder(nn.Module):
         if num_tokens < 1 or knn < 1:
             raise ValueError(f"num_tokens and knn must be >= 1; got {num_tokens}, {knn}")
         self.output, self.sampling, self.num_tokens, self.knn = output, sampling, num_tokens, knn
-        width = POINTNET_WIDTHS[-1]
-        if sampling == "post":
-            self.backbone = shared_mlp(in_channels)
-            if output == "tokens":
-                # Linear(relative xyz ‖ feature) split in two: the feature part is applied once per point before
-                # grouping instead of once per (seed, neighbour) pair — the same map, ~knn times fewer FLOPs.
-                self.feature_proj = nn.Linear(width, dim)
-                self.offset_proj = nn.Linear(3, dim, bias=False)
-                self.group_act = nn.Sequential(nn.BatchNorm1d(dim), nn.ReLU(inplace=True))
-        else:
-            self.backbone = shared_mlp(3 + in_channels)
+        self.backbone = backbone
+        width = backbone.out_channels
+        if sampling == "post" and output == "tokens":
+            # Linear(relative xyz ‖ feature) split in two: the feature part is applied once per point before
+            # grouping instead of once per (seed, neighbour) pair — the same map, ~knn times fewer FLOPs.
+            self.feature_proj = nn.Linear(width, dim, bias=False)
+            self.offset_proj = nn.Linear(3, dim, bias=False)
+            self.group_act = nn.Sequential(*norm_relu(dim))
+        if sampling == "pre":
+            self.group_proj = nn.Sequential(nn.Linear(3 + in_channels, in_channels, bias=False), *norm_relu(in_channels))
             if output == "tokens":
                 self.tokenizer = nn.Linear(width, dim)
         self.out_dim = dim if output == "tokens" else width
@@ -105,7 +124,7 @@ class PointNetEncoder(nn.Module):
 
     def forward(self, cloud: PointCloud) -> Tensor | tuple[Tensor, Tensor]:
         if self.sampling == "post":
-            point_feats = masked_apply(self.backbone, cloud.features, cloud.mask)
+            point_feats = self.backbone(cloud.xyz, cloud.features, cloud.mask)
             if self.output == "global":
                 return point_feats.masked_fill(~cloud.mask[..., None], float("-inf")).amax(dim=1)
             neighbours, offsets, seeds, seed_mask = group(cloud.xyz, cloud.mask, self.num_tokens, self.knn)
@@ -114,16 +133,21 @@ class PointNetEncoder(nn.Module):
         else:
             neighbours, offsets, seeds, seed_mask = group(cloud.xyz, cloud.mask, self.num_tokens, self.knn)
             grouped = torch.cat([offsets, geometry.gather(cloud.features, neighbours)], dim=-1)
-            group_feats = pool_groups(self.backbone, grouped, seed_mask)
+            seed_feats = self.backbone(seeds, pool_groups(self.group_proj, grouped, seed_mask), seed_mask)
             if self.output == "global":
-                return group_feats.amax(dim=1)
-            tokens = self.tokenizer(group_feats)
+                return seed_feats.masked_fill(~seed_mask[..., None], float("-inf")).amax(dim=1)
+            tokens = torch.where(seed_mask[..., None], self.tokenizer(seed_feats), self.tokenizer(seed_feats[:, :1]))
         return tokens, sine_embedding_3d(seeds, self.pos_dim).to(tokens.dtype)
 
 
-@register_encoder("pointnet", ("pointcloud",), "PointNet shared MLP 64-64-64-128-512 with BN (paper, 0.14M)")
+@register_encoder("pointnet", ("pointcloud",), "PointNet: 5 kernel-1 convs 64-64-64-128-512 + BN (the paper's "
+                  "PointNet; 84.5k parameters, see README)")
 def build_pointnet(obs_space: str, output: str, dim: int = 512, point_features: str = "rgb+xyz",
-                   sampling: str = "post", num_tokens: int = 2048, knn: int = 16, **_: object) -> PointNetEncoder:
-    return PointNetEncoder(input_channels(obs_space, point_features), output, dim=dim, sampling=sampling,
-                           num_tokens=num_tokens, knn=knn)
-
+                   sampling: str = "post", num_tokens: int = 2048, knn: int = 16, pretrained: str | None = None,
+                   **_: object) -> PointTokenEncoder:
+    if pretrained:
+        raise ValueError(f"pointnet is trained from scratch in the paper and has no pretrained weights "
+                         f"(pretrained={pretrained!r}); use spunet34 for PonderV2 weights")
+    channels = input_channels(obs_space, point_features)
+    return PointTokenEncoder(PointNetBackbone(channels), channels, output, dim=dim, sampling=sampling,
+                             num_tokens=num_tokens, knn=knn)

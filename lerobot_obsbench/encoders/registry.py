@@ -24,19 +24,21 @@ class EncoderInfo:
     spaces: tuple[str, ...]
     summary: str
     build: Callable[..., nn.Module]
+    pretrained: str = ""  # which pretrained weights `pretrained=` accepts; empty: trained from scratch only
 
 
 _REGISTRY: dict[str, EncoderInfo] = {}
 
 
-def register_encoder(name: str, spaces: tuple[str, ...], summary: str):
-    """Decorator registering `build(obs_space, output, **kwargs) -> nn.Module` under `name`."""
+def register_encoder(name: str, spaces: tuple[str, ...], summary: str, pretrained: str = ""):
+    """Decorator registering `build(obs_space, output, **kwargs) -> nn.Module` under `name`; `pretrained` names
+    the weights its `pretrained=` argument loads (empty: none)."""
     unknown = set(spaces) - set(OBS_SPACES)
     if unknown:
         raise ValueError(f"encoder {name!r} declares unknown spaces {sorted(unknown)}")
 
     def decorator(build: Callable[..., nn.Module]) -> Callable[..., nn.Module]:
-        _REGISTRY[name] = EncoderInfo(name, tuple(spaces), summary, build)
+        _REGISTRY[name] = EncoderInfo(name, tuple(spaces), summary, build, pretrained)
         return build
 
     return decorator

@@ -15,7 +15,7 @@ from torch.optim.lr_scheduler import LRScheduler, OneCycleLR
 
 from lerobot_obsbench import geometry
 from lerobot_obsbench.datasets import schema
-from lerobot_obsbench.encoders import check_encoder, make_encoder
+from lerobot_obsbench.encoders import available_encoders, check_encoder, encoder_info, make_encoder
 from lerobot_obsbench.encoders.pointnet import SAMPLING
 from lerobot_obsbench.spaces import (
     DEFAULT_WORKSPACE,
@@ -100,10 +100,26 @@ class ObservationConfig:
         check_point_features(self.point_features)
         if self.sampling not in SAMPLING:
             raise ValueError(f"sampling must be one of {SAMPLING}; got {self.sampling!r}")
+        self.check_ablations()
         check_geometry(self.workspace, self.voxel_size, self.depth_clip)
         for name in ("num_tokens", "knn"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1; got {getattr(self, name)}")
+
+    def check_ablations(self) -> None:
+        """Design choices that only some spaces / encoders have: refuse the others instead of ignoring them."""
+        if self.pretrained and not encoder_info(self.encoder).pretrained:
+            with_weights = [n for n in available_encoders(self.obs_space) if encoder_info(n).pretrained]
+            raise ValueError(f"encoder {self.encoder!r} has no pretrained weights (pretrained={self.pretrained!r}); "
+                             f"encoders for {self.obs_space!r} that load weights: {', '.join(with_weights) or 'none'}")
+        points = self.obs_space == "pointcloud"
+        for name, default in (("sampling", "post"), ("point_features", "rgb+xyz")):
+            if not points and getattr(self, name) != default:
+                raise ValueError(f"{name}={getattr(self, name)!r} is a point-cloud design choice; obs_space="
+                                 f"{self.obs_space!r} has none (use obs_space='pointcloud' or leave {name}={default!r})")
+        if self.frame != "world" and self.obs_space not in ("pointcloud", "pointmap"):
+            raise ValueError(f"frame={self.frame!r} changes point coordinates; obs_space={self.obs_space!r} has none "
+                             "(use pointcloud or pointmap, or leave frame='world')")
 
     def resolve_observation_features(self) -> None:
         """Check the dataset features against the space, fix `cameras`, and take the sensor keys out of
@@ -203,7 +219,8 @@ class ObservationEncoder(nn.Module):
         self.encoder = make_encoder(
             config.encoder, config.obs_space, output=output, dim=dim, pretrained=config.pretrained,
             point_features=config.point_features, sampling=config.sampling, num_tokens=config.num_tokens,
-            knn=config.knn,
+            knn=config.knn, voxel_size=config.voxel_size,
+            image_size=config.camera_resolution[0] if config.camera_resolution else None,
         )
         self.out_dim = self.encoder.out_dim
         mode = config.normalization_mapping.get(FeatureType.STATE.value, NormalizationMode.IDENTITY)

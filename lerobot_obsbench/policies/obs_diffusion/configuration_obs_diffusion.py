@@ -9,6 +9,8 @@ from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
 
 from lerobot_obsbench.policies.common import ObservationConfig
 
+DENOISERS = ("unet", "transformer")
+
 
 @PreTrainedConfig.register_subclass("obs_diffusion")
 @dataclass
@@ -25,3 +27,21 @@ class ObsDiffusionConfig(ObservationConfig, DiffusionConfig):
     optimizer_lr: float = 1e-4
     # Local runs must not require --policy.repo_id.
     push_to_hub: bool = False
+    # Noise-prediction network: "unet" (LeRobot's 1-D conditional UNet, the paper's main setting) or
+    # "transformer" (Diffusion Policy's time-series transformer, the paper's ablation).
+    denoiser: str = "unet"
+    # Transformer denoiser: layers, attention heads, width, attention dropout, causal attention over the
+    # action sequence (Diffusion Policy's defaults).
+    transformer_layers: int = 8
+    transformer_heads: int = 4
+    transformer_dim: int = 256
+    transformer_attn_dropout: float = 0.3
+    transformer_causal: bool = True
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.denoiser not in DENOISERS:
+            raise ValueError(f"denoiser must be one of {DENOISERS}; got {self.denoiser!r}")
+        if self.denoiser == "transformer" and self.transformer_dim % self.transformer_heads:
+            raise ValueError(f"transformer_dim ({self.transformer_dim}) must be divisible by transformer_heads "
+                             f"({self.transformer_heads})")

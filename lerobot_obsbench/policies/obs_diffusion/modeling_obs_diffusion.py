@@ -10,6 +10,7 @@ from lerobot.policies.diffusion.modeling_diffusion import (
     DiffusionConditionalUnet1d,
     DiffusionModel,
     DiffusionPolicy,
+    DiffusionSinusoidalPosEmb,
     _make_noise_scheduler,
 )
 from lerobot.policies.pretrained import PreTrainedPolicy
@@ -18,6 +19,43 @@ from torch import Tensor, nn
 
 from lerobot_obsbench.policies.common import EnvObservationMixin, ObservationEncoder
 from lerobot_obsbench.policies.obs_diffusion.configuration_obs_diffusion import ObsDiffusionConfig
+
+
+class DiffusionTransformer(nn.Module):
+    """Diffusion Policy's time-series transformer denoiser, a drop-in for LeRobot's UNet (same call):
+    `(noisy actions (B, T, A), timestep (B,), global_cond (B, n_obs * G)) -> (B, T, A)`.
+
+    Action steps are the decoder's queries (causal self-attention); the memory is one token for the diffusion
+    step plus one per observation step, each a linear map of that step's conditioning features.
+    """
+
+    def __init__(self, config, cond_dim_per_step: int):
+        super().__init__()
+        dim, action_dim = config.transformer_dim, config.action_feature.shape[0]
+        self.n_obs_steps, self.causal = config.n_obs_steps, config.transformer_causal
+        self.action_in = nn.Linear(action_dim, dim)
+        self.action_pos = nn.Parameter(torch.zeros(1, config.horizon, dim))
+        self.step_embed = nn.Sequential(DiffusionSinusoidalPosEmb(dim), nn.Linear(dim, dim * 4), nn.Mish(),
+                                        nn.Linear(dim * 4, dim))
+        self.cond_in = nn.Linear(cond_dim_per_step, dim)
+        self.cond_pos = nn.Parameter(torch.zeros(1, 1 + config.n_obs_steps, dim))
+        layer = nn.TransformerDecoderLayer(dim, config.transformer_heads, dim_feedforward=4 * dim,
+                                           dropout=config.transformer_attn_dropout, activation="gelu",
+                                           batch_first=True, norm_first=True)
+        self.decoder = nn.TransformerDecoder(layer, config.transformer_layers)
+        self.norm = nn.LayerNorm(dim)
+        self.action_out = nn.Linear(dim, action_dim)
+        nn.init.normal_(self.action_pos, std=0.02)
+        nn.init.normal_(self.cond_pos, std=0.02)
+
+    def forward(self, x: Tensor, timestep: Tensor | int, global_cond: Tensor | None = None) -> Tensor:
+        b, horizon = x.shape[:2]
+        timestep = torch.as_tensor(timestep, device=x.device).expand(b)
+        cond = self.cond_in(global_cond.reshape(b, self.n_obs_steps, -1))
+        memory = torch.cat([self.step_embed(timestep)[:, None], cond], dim=1) + self.cond_pos
+        queries = self.action_in(x) + self.action_pos[:, :horizon]
+        mask = nn.Transformer.generate_square_subsequent_mask(horizon, device=x.device) if self.causal else None
+        return self.action_out(self.norm(self.decoder(queries, memory, tgt_mask=mask, tgt_is_causal=self.causal)))
 
 
 class ObsDiffusionModel(DiffusionModel):
@@ -33,7 +71,11 @@ class ObsDiffusionModel(DiffusionModel):
         global_cond_dim = config.robot_state_feature.shape[0] + self.observation.out_dim
         if config.env_state_feature:
             global_cond_dim += config.env_state_feature.shape[0]
-        self.unet = DiffusionConditionalUnet1d(config, global_cond_dim=global_cond_dim * config.n_obs_steps)
+        # Stock code calls the denoiser `self.unet`, whichever network it is.
+        if config.denoiser == "transformer":
+            self.unet = DiffusionTransformer(config, global_cond_dim)
+        else:
+            self.unet = DiffusionConditionalUnet1d(config, global_cond_dim=global_cond_dim * config.n_obs_steps)
         self.noise_scheduler = _make_noise_scheduler(
             config.noise_scheduler_type,
             num_train_timesteps=config.num_train_timesteps,

@@ -1,0 +1,121 @@
+"""The sparse U-Net network of `spunet34` (see `spunet.py`); importing this module needs spconv."""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from functools import partial
+
+import torch
+from torch import Tensor, nn
+
+from lerobot_obsbench.encoders.spunet import (
+    DECODER_BLOCKS,
+    DECODER_CHANNELS,
+    ENCODER_BLOCKS,
+    ENCODER_CHANNELS,
+    STEM_CHANNELS,
+    import_spconv,
+)
+
+spconv = import_spconv()
+
+
+def _norm(channels: int) -> nn.BatchNorm1d:
+    return nn.BatchNorm1d(channels, eps=1e-3, momentum=0.01)
+
+
+class ConvNormReLU(nn.Module):
+    """A sparse conv + BN + ReLU with PonderV2's `.conv` / `.bn` names."""
+
+    def __init__(self, conv: nn.Module, channels: int):
+        super().__init__()
+        self.conv, self.bn, self.relu = conv, _norm(channels), nn.ReLU()
+
+    def forward(self, x):
+        x = self.conv(x)
+        return x.replace_feature(self.relu(self.bn(x.features)))
+
+
+class BasicBlock(spconv.SparseModule):
+    """Residual block of two 3x3x3 submanifold convs (+ a 1x1 projection when the width changes)."""
+
+    def __init__(self, in_channels: int, channels: int, indice_key: str):
+        super().__init__()
+        subm = partial(spconv.SubMConv3d, kernel_size=3, padding=1, bias=False, indice_key=indice_key)
+        self.conv1, self.bn1 = subm(in_channels, channels), _norm(channels)
+        self.conv2, self.bn2 = subm(channels, channels), _norm(channels)
+        self.relu = nn.ReLU()
+        self.project = in_channels != channels
+        if self.project:
+            self.proj_conv = spconv.SubMConv3d(in_channels, channels, kernel_size=1, bias=False)
+            self.proj_norm = _norm(channels)
+
+    def forward(self, x):
+        out = self.conv1(x)
+        out = out.replace_feature(self.relu(self.bn1(out.features)))
+        out = self.conv2(out)
+        residual = self.proj_norm(self.proj_conv(x).features) if self.project else x.features
+        return out.replace_feature(self.relu(self.bn2(out.features) + residual))
+
+
+class SpUNet(nn.Module):
+    """Sparse U-Net over voxels: (xyz (B, N, 3), features (B, N, C), mask (B, N)) -> (B, N, 96)."""
+
+    def __init__(self, in_channels: int, voxel_size: float = 0.005):
+        super().__init__()
+        self.voxel_size = voxel_size
+        self.out_channels = DECODER_CHANNELS[-1]
+        self.conv_input = ConvNormReLU(spconv.SubMConv3d(in_channels, STEM_CHANNELS, kernel_size=5, padding=1,
+                                                         bias=False, indice_key="stem"), STEM_CHANNELS)
+        self.down, self.enc, self.up, self.dec = (nn.ModuleList() for _ in range(4))
+        enc_in, dec_out = STEM_CHANNELS, DECODER_CHANNELS[-1]
+        stages = len(ENCODER_CHANNELS)
+        for s in range(stages):
+            channels = ENCODER_CHANNELS[s]
+            self.down.append(ConvNormReLU(spconv.SparseConv3d(
+                enc_in, channels, kernel_size=2, stride=2, bias=False, indice_key=f"spconv{s + 1}"), channels))
+            self.enc.append(spconv.SparseSequential(OrderedDict(
+                (f"block{i}", BasicBlock(channels, channels, f"subm{s + 1}"))
+                for i in range(ENCODER_BLOCKS[s]))))
+            # decoder stage s undoes down[s]: from the level below (channels of stage s+1's decoder output, or
+            # the bottleneck) back to stage s's input resolution, then merges the skip of that resolution.
+            below = DECODER_CHANNELS[stages - s - 2] if s < stages - 1 else ENCODER_CHANNELS[-1]
+            self.up.append(ConvNormReLU(spconv.SparseInverseConv3d(
+                below, dec_out, kernel_size=2, bias=False, indice_key=f"spconv{s + 1}"), dec_out))
+            blocks = DECODER_BLOCKS[stages - s - 1]
+            self.dec.append(spconv.SparseSequential(OrderedDict(
+                (f"block{i}", BasicBlock(dec_out + enc_in if i == 0 else dec_out, dec_out, f"subm{s}"))
+                for i in range(blocks))))
+            enc_in, dec_out = channels, DECODER_CHANNELS[stages - s - 2] if s < stages - 1 else dec_out
+
+    def voxelize(self, xyz: Tensor, mask: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """(voxel indices (M, 4) int32 [batch, x, y, z], index of each voxel's first point in the flat valid
+        points (M,), voxel of every valid point (P,))."""
+        batch = torch.nonzero(mask)[:, 0]
+        cells = torch.floor(xyz[mask] / self.voxel_size).to(torch.int64)
+        mins = torch.full((mask.shape[0], 3), torch.iinfo(torch.int64).max, device=xyz.device, dtype=torch.int64)
+        mins = mins.scatter_reduce(0, batch[:, None].expand(-1, 3), cells, reduce="amin")
+        cells = cells - mins[batch]
+        keys = torch.cat([batch[:, None], cells], dim=1)
+        unique, point_voxel = torch.unique(keys, dim=0, return_inverse=True)
+        first = torch.full((len(unique),), len(keys), device=xyz.device, dtype=torch.int64)
+        first = first.scatter_reduce(0, point_voxel, torch.arange(len(keys), device=xyz.device), reduce="amin")
+        return unique.to(torch.int32), first, point_voxel
+
+    def forward(self, xyz: Tensor, features: Tensor, mask: Tensor) -> Tensor:
+        indices, first, point_voxel = self.voxelize(xyz, mask)
+        shape = (indices[:, 1:].amax(dim=0) + 96).tolist()
+        x = spconv.SparseConvTensor(features[mask][first], indices, shape, mask.shape[0])
+        x = self.conv_input(x)
+        skips = [x]
+        for down, enc in zip(self.down, self.enc):
+            x = enc(down(x))
+            skips.append(x)
+        x = skips.pop()
+        for s in reversed(range(len(self.up))):
+            x = self.up[s](x)
+            x = x.replace_feature(torch.cat([x.features, skips.pop().features], dim=1))
+            x = self.dec[s](x)
+        out = x.features.new_zeros(*mask.shape, self.out_channels)
+        out[mask] = x.features[point_voxel]
+        return out

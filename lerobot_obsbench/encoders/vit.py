@@ -1,0 +1,155 @@
+"""ViT-B/16 (`vit_b`) and MultiMAE-style MultiViT-B (`multivit_b`) image encoders, built from timm's blocks.
+
+Both represent a camera frame by one token: ViT's [CLS] token (after the final norm), MultiViT's global token.
+ACT gets that token per camera projected to its width (positions: a sine code of the camera index); Diffusion
+Policy gets the concatenated tokens of all cameras.
+
+- `vit_b`: timm's VisionTransformer, 1/3/4/6 input channels (rgb, depth, rgbd, pointmap), built for the camera
+  resolution (frames whose size is not a multiple of 16 are zero-padded, in both encoders). `pretrained=` loads a MAE-layout checkpoint such as VC-1's (`cls_token`, `pos_embed`,
+  `patch_embed.*`, `blocks.*`, `norm.*`; MAE's decoder keys are dropped): the position embedding is resampled to
+  the camera's patch grid and extra input channels start at zero.
+- `multivit_b`: rgbd only. One patch adapter per modality (rgb: 3 channels, depth: 1), each with a fixed 2-D
+  sine-cosine position map interpolated to the patch grid; patch tokens of both modalities plus one learned
+  global token go through 12 transformer blocks. Keys follow MultiMAE's layout (`input_adapters.{rgb,depth}.*`,
+  `global_tokens`, `encoder.N.*`), so a MultiMAE checkpoint loads as is (other adapters and the decoders are
+  ignored).
+"""
+
+from __future__ import annotations
+
+import math
+from functools import partial
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from lerobot_obsbench.encoders.pretrained import expand_input_channels, load_matching, read_state_dict
+from lerobot_obsbench.encoders.registry import register_encoder
+from lerobot_obsbench.spaces import input_channels
+
+IMAGE_SPACES = ("rgb", "depth", "rgbd", "pointmap")
+WIDTH, DEPTH, HEADS, PATCH = 768, 12, 12, 16
+
+
+def _sine_code(n: int, dim: int, device) -> Tensor:
+    """(1, n, dim) sine/cosine code of positions 0..n-1 (tells ACT which camera a token comes from)."""
+    position = torch.arange(n, device=device, dtype=torch.float32)[:, None]
+    freq = torch.exp(torch.arange(0, dim, 2, device=device, dtype=torch.float32) * (-math.log(10000.0) / dim))
+    code = torch.zeros(n, dim, device=device)
+    code[:, 0::2] = torch.sin(position * freq)
+    code[:, 1::2] = torch.cos(position * freq)
+    return code[None]
+
+
+class _CameraTokens(nn.Module):
+    """One feature per camera -> ACT tokens (B, n_cam, dim) + positions, or DP's (B, n_cam * width)."""
+
+    def __init__(self, width: int, output: str, dim: int):
+        super().__init__()
+        self.output = output
+        self.proj = nn.Linear(width, dim) if output == "tokens" else None
+        self.out_dim = dim if output == "tokens" else width
+
+    def forward(self, features: Tensor, batch: int) -> Tensor | tuple[Tensor, Tensor]:
+        features = features.reshape(batch, -1, features.shape[-1])
+        if self.output == "global":
+            return features.flatten(1)
+        tokens = self.proj(features)
+        return tokens, _sine_code(tokens.shape[1], tokens.shape[2], tokens.device).to(tokens.dtype)
+
+
+class ViTEncoder(nn.Module):
+    def __init__(self, in_channels: int, output: str, dim: int = 512, pretrained: str | None = None,
+                 image_size: int = 224):
+        super().__init__()
+        from timm.models.vision_transformer import VisionTransformer
+
+        self.vit = VisionTransformer(img_size=image_size, patch_size=PATCH, in_chans=in_channels, num_classes=0,
+                                     embed_dim=WIDTH, depth=DEPTH, num_heads=HEADS, global_pool="token",
+                                     dynamic_img_size=True, dynamic_img_pad=True)
+        if pretrained:
+            self.load_mae(pretrained)
+        self.head = _CameraTokens(WIDTH, output, dim)
+        self.out_dim = self.head.out_dim
+
+    def load_mae(self, pretrained: str) -> dict:
+        from timm.layers import resample_abs_pos_embed
+
+        state = read_state_dict(pretrained)  # MAE's decoder keys are not the encoder's: reported as ignored
+        grid = self.vit.patch_embed.grid_size
+        if "pos_embed" in state and state["pos_embed"].shape != self.vit.pos_embed.shape:
+            state["pos_embed"] = resample_abs_pos_embed(state["pos_embed"], new_size=list(grid), num_prefix_tokens=1)
+        weight = state.get("patch_embed.proj.weight")
+        if weight is not None and weight.shape[1] == 3:
+            state["patch_embed.proj.weight"] = expand_input_channels(weight, self.vit.patch_embed.proj.in_channels)
+        return load_matching(self.vit, state, f"MAE/VC-1 checkpoint {pretrained}")
+
+    def forward(self, images: Tensor) -> Tensor | tuple[Tensor, Tensor]:
+        """images (B, n_cam, C, H, W) -> ACT tokens + pos, or (B, n_cam * 768)."""
+        return self.head(self.vit(images.flatten(0, 1)), images.shape[0])
+
+
+def sincos_2d(h: int, w: int, dim: int) -> Tensor:
+    """Fixed 2-D sine-cosine position map (1, dim, h, w): a quarter of the channels per sin/cos of x and y."""
+    quarter = dim // 4
+    omega = 1.0 / 10000 ** (torch.arange(quarter, dtype=torch.float32) / quarter)
+    ys, xs = torch.meshgrid(torch.arange(h, dtype=torch.float32), torch.arange(w, dtype=torch.float32), indexing="ij")
+    ox, oy = xs.reshape(-1, 1) * omega, ys.reshape(-1, 1) * omega
+    code = torch.cat([ox.sin(), ox.cos(), oy.sin(), oy.cos()], dim=1)  # (h*w, dim)
+    return code.T.reshape(1, dim, h, w)
+
+
+class PatchAdapter(nn.Module):
+    """Patches of one modality -> tokens with an interpolated fixed position map (MultiMAE's adapter layout)."""
+
+    def __init__(self, channels: int, grid: int = 14):
+        super().__init__()
+        self.proj = nn.Conv2d(channels, WIDTH, kernel_size=PATCH, stride=PATCH)
+        self.pos_emb = nn.Parameter(sincos_2d(grid, grid, WIDTH), requires_grad=False)
+
+    def forward(self, x: Tensor) -> Tensor:
+        tokens = self.proj(x)
+        pos = F.interpolate(self.pos_emb, size=tokens.shape[-2:], mode="bicubic", align_corners=False)
+        return (tokens + pos).flatten(2).transpose(1, 2)
+
+
+class MultiViTEncoder(nn.Module):
+    def __init__(self, output: str, dim: int = 512, pretrained: str | None = None):
+        super().__init__()
+        from timm.models.vision_transformer import Block
+
+        self.input_adapters = nn.ModuleDict({"rgb": PatchAdapter(3), "depth": PatchAdapter(1)})
+        self.global_tokens = nn.Parameter(torch.zeros(1, 1, WIDTH))
+        nn.init.trunc_normal_(self.global_tokens, std=0.02)
+        norm = partial(nn.LayerNorm, eps=1e-6)
+        self.encoder = nn.Sequential(*[Block(WIDTH, HEADS, mlp_ratio=4.0, qkv_bias=True, norm_layer=norm)
+                                       for _ in range(DEPTH)])
+        self.head = _CameraTokens(WIDTH, output, dim)
+        self.out_dim = self.head.out_dim
+        if pretrained:
+            self.load_multimae(pretrained)
+
+    def load_multimae(self, pretrained: str) -> dict:
+        state = read_state_dict(pretrained)  # other modalities' adapters and the decoders are reported as ignored
+        return load_matching(self, state, f"MultiMAE checkpoint {pretrained}", allow_missing=("head.",))
+
+    def forward(self, images: Tensor) -> Tensor | tuple[Tensor, Tensor]:
+        """rgbd images (B, n_cam, 4, H, W) -> one global token per camera (ACT tokens or DP features)."""
+        x = images.flatten(0, 1)
+        x = F.pad(x, (0, -x.shape[-1] % PATCH, 0, -x.shape[-2] % PATCH))  # sizes not divisible by 16: pad
+        tokens = torch.cat([self.input_adapters["rgb"](x[:, :3]), self.input_adapters["depth"](x[:, 3:4]),
+                            self.global_tokens.expand(x.shape[0], -1, -1)], dim=1)
+        return self.head(self.encoder(tokens)[:, -1], images.shape[0])
+
+
+@register_encoder("vit_b", IMAGE_SPACES, "ViT-B/16 (paper, 85.8M); [CLS] token", pretrained="VC-1 / MAE layout")
+def build_vit(obs_space: str, output: str, dim: int = 512, pretrained: str | None = None,
+              image_size: int | None = None, **_: object):
+    return ViTEncoder(input_channels(obs_space), output, dim=dim, pretrained=pretrained, image_size=image_size or 224)
+
+
+@register_encoder("multivit_b", ("rgbd",), "MultiMAE-style MultiViT-B (paper, 86.1M); rgb + depth patch "
+                  "adapters, global token", pretrained="MultiMAE")
+def build_multivit(obs_space: str, output: str, dim: int = 512, pretrained: str | None = None, **_: object):
+    return MultiViTEncoder(output, dim=dim, pretrained=pretrained)
