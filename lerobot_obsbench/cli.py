@@ -18,7 +18,8 @@ def cmd_encoders(args: argparse.Namespace) -> int:
 
     for name in available_encoders(args.obs_space):
         info = encoder_info(name)
-        print(f"{name:10s} spaces: {', '.join(info.spaces):32s} {info.summary}")
+        weights = f"; pretrained: {info.pretrained}" if info.pretrained else ""
+        print(f"{name:10s} spaces: {', '.join(info.spaces):32s} {info.summary}{weights}")
     return 0
 
 
