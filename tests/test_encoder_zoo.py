@@ -204,11 +204,14 @@ def test_ponderv2_checkpoint_loads_with_its_conditional_norms(tmp_path):
     with torch.no_grad():
         expected = source(cloud.xyz, cloud.features, cloud.mask)
         error = (loaded(cloud.xyz, cloud.features, cloud.mask) - expected).abs()
-    # Folding the scale into the affine only changes float rounding, but 24 random layers amplify it: compare
-    # against the output's scale (a wrong condition or a missed modulation gives errors of order 1).
+    # Folding the scale into the affine only changes float rounding, but through 24 random layers a rounding
+    # difference can flip a ReLU near zero and move a few outputs by ~1%. So: the bulk must agree to rounding
+    # (mean and 99.9th percentile), the worst element within a few percent. A skipped modulation or the wrong
+    # dataset's norms move the mean error to ~1e-1 of the output scale.
     scale = expected.abs().max()
     print(f"PonderV2 load: max error {error.max() / scale:.2e}, mean {error.mean() / scale:.2e} of the output scale")
-    assert error.max() <= 1e-2 * scale and error.mean() <= 1e-4 * scale
+    assert error.mean() <= 1e-5 * scale and torch.quantile(error.flatten(), 0.999) <= 1e-3 * scale
+    assert error.max() <= 5e-2 * scale
     assert expected[cloud.mask].abs().mean() > 0.05  # not a trivially small output
 
 
