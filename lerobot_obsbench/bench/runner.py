@@ -191,11 +191,17 @@ def run_grid(grid: Grid, out: Path, workers: int = 1, device: str = "cpu", dry_r
     started = time.time()
     jobs = [(run, str(datasets[run.demo_key])) for run in todo]
     if workers <= 1:
-        outcomes = ((run, _attempt(run, dataset, out, device, loader_workers)) for run, dataset in jobs)
-        failures = _collect(outcomes, out, len(jobs), started, echo)
+        def sequential():
+            for index, (run, dataset) in enumerate(jobs, start=1):
+                echo(f"[{index}/{len(jobs)}] training {run.run_id} {run.method} on {run.task} "
+                     f"(log: {out / 'runs' / run.run_id / 'train.log'})")
+                yield run, _attempt(run, dataset, out, device, loader_workers)
+
+        failures = _collect(sequential(), out, len(jobs), started, echo)
     else:
         with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_die_with_parent) as pool:
             futures = {pool.submit(_attempt, run, dataset, out, device, loader_workers): run for run, dataset in jobs}
+            echo(f"{len(jobs)} runs queued on {workers} worker processes (logs: {out / 'runs'}/<run_id>/train.log)")
             outcomes = ((futures[f], f.result()) for f in as_completed(futures))
             failures = _collect(outcomes, out, len(jobs), started, echo)
     return failures
