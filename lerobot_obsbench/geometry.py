@@ -100,6 +100,20 @@ def gather(values: Tensor, index: Tensor) -> Tensor:
     return values[batch, index]
 
 
+def voxel_grid(points: Tensor, mask: Tensor, voxel_size: float) -> tuple[Tensor, Tensor]:
+    """Integer voxel coordinates (B, N, 3) of each point, relative to its cloud's lowest occupied voxel, and a
+    voxel key (B, N) equal for two points exactly when they share a cloud and a voxel (-1 for padding). Keys
+    sort by cloud, then x, y, z."""
+    b = points.shape[0]
+    cells = torch.floor(points / voxel_size).to(torch.int64)
+    cells = cells - cells.masked_fill(~mask[..., None], torch.iinfo(torch.int64).max).amin(dim=1, keepdim=True)
+    cells = cells.clamp(min=0)
+    span = cells.masked_fill(~mask[..., None], 0).amax(dim=(0, 1)) + 1
+    key = (cells[..., 0] * span[1] + cells[..., 1]) * span[2] + cells[..., 2]
+    key = key + torch.arange(b, device=points.device)[:, None] * (span[0] * span[1] * span[2])
+    return cells, key.masked_fill(~mask, -1)
+
+
 def voxel_sample(points: Tensor, mask: Tensor, voxel_size: float, random: bool,
                  generator: torch.Generator | None = None) -> Tensor:
     """Keep exactly one point per occupied voxel of edge `voxel_size` (per batch element).
@@ -108,14 +122,8 @@ def voxel_sample(points: Tensor, mask: Tensor, voxel_size: float, random: bool,
     `random=False` (evaluation) deterministically keeps the lowest-index point.
     """
     b, n, _ = points.shape
-    cells = torch.floor(points / voxel_size).to(torch.int64)
-    cells = cells - cells.masked_fill(~mask[..., None], torch.iinfo(torch.int64).max).amin(dim=1, keepdim=True)
-    cells = cells.clamp(min=0)
-    span = cells.masked_fill(~mask[..., None], 0).amax(dim=(0, 1)) + 1
-    key = (cells[..., 0] * span[1] + cells[..., 1]) * span[2] + cells[..., 2]
-    key = key + torch.arange(b, device=points.device)[:, None] * (span[0] * span[1] * span[2])
-    key = key.masked_fill(~mask, -1).reshape(-1)
-    _, voxel_id = torch.unique(key, return_inverse=True)
+    _, key = voxel_grid(points, mask, voxel_size)
+    _, voxel_id = torch.unique(key.reshape(-1), return_inverse=True)
     if random:
         score = torch.randperm(b * n, device=points.device, generator=generator)
     else:

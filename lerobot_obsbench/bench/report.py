@@ -265,12 +265,12 @@ def perturbation_series(records: list[dict]) -> dict[str, dict[str, list[tuple[f
         pert = parse_perturbation(name)
         for method, value in _mean_over_tasks(pooled_cells(records, name)).items():
             curves[pert.kind][method].append((pert.scalar, value))
+    nominal_rates = _mean_over_tasks(pooled_cells(records, "none")) if curves else {}
     for kind, by_method in curves.items():
-        nominal = NOMINAL_VALUE[kind]
-        if nominal is not None:
-            for method, value in _mean_over_tasks(pooled_cells(records, "none")).items():
+        if NOMINAL_VALUE[kind] is not None:
+            for method, value in nominal_rates.items():
                 if method in by_method:
-                    by_method[method].append((nominal, value))
+                    by_method[method].append((NOMINAL_VALUE[kind], value))
     return curves
 
 

@@ -43,10 +43,12 @@ def append_result(path: Path, record: dict) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     line = json.dumps(record, sort_keys=True) + "\n"
-    with open(path, "ab") as f:
+    with open(path, "a+b") as f:
         # A previous kill may have left a truncated line without its newline: start on a fresh line.
-        if f.tell() and not path.read_bytes().endswith(b"\n"):
-            f.write(b"\n")
+        if f.seek(0, os.SEEK_END):
+            f.seek(-1, os.SEEK_END)
+            if f.read(1) != b"\n":
+                f.write(b"\n")
         f.write(line.encode())
         f.flush()
         os.fsync(f.fileno())

@@ -8,6 +8,7 @@ from functools import partial
 import torch
 from torch import Tensor, nn
 
+from lerobot_obsbench import geometry
 from lerobot_obsbench.encoders.spunet import (
     DECODER_BLOCKS,
     DECODER_CHANNELS,
@@ -68,39 +69,35 @@ class SpUNet(nn.Module):
         self.conv_input = ConvNormReLU(spconv.SubMConv3d(in_channels, STEM_CHANNELS, kernel_size=5, padding=1,
                                                          bias=False, indice_key="stem"), STEM_CHANNELS)
         self.down, self.enc, self.up, self.dec = (nn.ModuleList() for _ in range(4))
-        enc_in, dec_out = STEM_CHANNELS, DECODER_CHANNELS[-1]
-        stages = len(ENCODER_CHANNELS)
-        for s in range(stages):
-            channels = ENCODER_CHANNELS[s]
+        # Decoder stage s undoes down[s]: it upsamples from the level below (the next decoder stage's output,
+        # or the bottleneck for the deepest) to dec_widths[s] and merges the skip that entered down[s].
+        dec_widths = DECODER_CHANNELS[::-1]
+        up_inputs = (*dec_widths[1:], ENCODER_CHANNELS[-1])
+        skips = (STEM_CHANNELS, *ENCODER_CHANNELS[:-1])
+        for s, channels in enumerate(ENCODER_CHANNELS):
             self.down.append(ConvNormReLU(spconv.SparseConv3d(
-                enc_in, channels, kernel_size=2, stride=2, bias=False, indice_key=f"spconv{s + 1}"), channels))
+                skips[s], channels, kernel_size=2, stride=2, bias=False, indice_key=f"spconv{s + 1}"), channels))
             self.enc.append(spconv.SparseSequential(OrderedDict(
                 (f"block{i}", BasicBlock(channels, channels, f"subm{s + 1}"))
                 for i in range(ENCODER_BLOCKS[s]))))
-            # decoder stage s undoes down[s]: from the level below (channels of stage s+1's decoder output, or
-            # the bottleneck) back to stage s's input resolution, then merges the skip of that resolution.
-            below = DECODER_CHANNELS[stages - s - 2] if s < stages - 1 else ENCODER_CHANNELS[-1]
+            width = dec_widths[s]
             self.up.append(ConvNormReLU(spconv.SparseInverseConv3d(
-                below, dec_out, kernel_size=2, bias=False, indice_key=f"spconv{s + 1}"), dec_out))
-            blocks = DECODER_BLOCKS[stages - s - 1]
+                up_inputs[s], width, kernel_size=2, bias=False, indice_key=f"spconv{s + 1}"), width))
             self.dec.append(spconv.SparseSequential(OrderedDict(
-                (f"block{i}", BasicBlock(dec_out + enc_in if i == 0 else dec_out, dec_out, f"subm{s}"))
-                for i in range(blocks))))
-            enc_in, dec_out = channels, DECODER_CHANNELS[stages - s - 2] if s < stages - 1 else dec_out
+                (f"block{i}", BasicBlock(width + skips[s] if i == 0 else width, width, f"subm{s}"))
+                for i in range(DECODER_BLOCKS[::-1][s]))))
 
     def voxelize(self, xyz: Tensor, mask: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """(voxel indices (M, 4) int32 [batch, x, y, z], index of each voxel's first point in the flat valid
         points (M,), voxel of every valid point (P,))."""
+        cells, key = geometry.voxel_grid(xyz, mask, self.voxel_size)
+        unique, point_voxel = torch.unique(key[mask], return_inverse=True)
+        points = torch.arange(len(point_voxel), device=xyz.device)
+        first = torch.full((len(unique),), len(point_voxel), device=xyz.device, dtype=torch.int64)
+        first = first.scatter_reduce(0, point_voxel, points, reduce="amin")
         batch = torch.nonzero(mask)[:, 0]
-        cells = torch.floor(xyz[mask] / self.voxel_size).to(torch.int64)
-        mins = torch.full((mask.shape[0], 3), torch.iinfo(torch.int64).max, device=xyz.device, dtype=torch.int64)
-        mins = mins.scatter_reduce(0, batch[:, None].expand(-1, 3), cells, reduce="amin")
-        cells = cells - mins[batch]
-        keys = torch.cat([batch[:, None], cells], dim=1)
-        unique, point_voxel = torch.unique(keys, dim=0, return_inverse=True)
-        first = torch.full((len(unique),), len(keys), device=xyz.device, dtype=torch.int64)
-        first = first.scatter_reduce(0, point_voxel, torch.arange(len(keys), device=xyz.device), reduce="amin")
-        return unique.to(torch.int32), first, point_voxel
+        indices = torch.cat([batch[first, None], cells[mask][first]], dim=1)
+        return indices.to(torch.int32), first, point_voxel
 
     def forward(self, xyz: Tensor, features: Tensor, mask: Tensor) -> Tensor:
         indices, first, point_voxel = self.voxelize(xyz, mask)

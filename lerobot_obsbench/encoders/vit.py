@@ -17,11 +17,11 @@ Policy gets the concatenated tokens of all cameras.
 
 from __future__ import annotations
 
-import math
 from functools import partial
 
 import torch
 import torch.nn.functional as F
+from lerobot.policies.act.modeling_act import create_sinusoidal_pos_embedding
 from torch import Tensor, nn
 
 from lerobot_obsbench.encoders.pretrained import expand_input_channels, load_matching, read_state_dict
@@ -30,16 +30,6 @@ from lerobot_obsbench.spaces import input_channels
 
 IMAGE_SPACES = ("rgb", "depth", "rgbd", "pointmap")
 WIDTH, DEPTH, HEADS, PATCH = 768, 12, 12, 16
-
-
-def _sine_code(n: int, dim: int, device) -> Tensor:
-    """(1, n, dim) sine/cosine code of positions 0..n-1 (tells ACT which camera a token comes from)."""
-    position = torch.arange(n, device=device, dtype=torch.float32)[:, None]
-    freq = torch.exp(torch.arange(0, dim, 2, device=device, dtype=torch.float32) * (-math.log(10000.0) / dim))
-    code = torch.zeros(n, dim, device=device)
-    code[:, 0::2] = torch.sin(position * freq)
-    code[:, 1::2] = torch.cos(position * freq)
-    return code[None]
 
 
 class _CameraTokens(nn.Module):
@@ -56,7 +46,8 @@ class _CameraTokens(nn.Module):
         if self.output == "global":
             return features.flatten(1)
         tokens = self.proj(features)
-        return tokens, _sine_code(tokens.shape[1], tokens.shape[2], tokens.device).to(tokens.dtype)
+        pos = create_sinusoidal_pos_embedding(tokens.shape[1], tokens.shape[2])[None]
+        return tokens, pos.to(device=tokens.device, dtype=tokens.dtype)
 
 
 class ViTEncoder(nn.Module):
