@@ -64,6 +64,7 @@ def test_run_id_is_a_hash_of_the_resolved_config():
     ({"perturbations": ["background:2,0,0"]}, ["background:2,0,0", "[0, 1]"]),
     ({"variants": [{}, {"sampling": "pre"}]}, ["obs_act/rgb/resnet18", "sampling='pre'", "point-cloud design"]),
     ({"policy_overrides": {"chunk_sise": 5}}, ["no fields ['chunk_sise']"]),
+    ({"seeds": []}, ["'seeds' is empty"]),
 ])
 def test_bad_grids_fail_with_the_valid_choices(change, words):
     with pytest.raises(GridError) as err:

@@ -88,7 +88,10 @@ class RunSpec:
 def _as_list(value, name: str) -> list:
     if value is None:
         raise GridError(f"grid field {name!r} is required")
-    return list(value) if isinstance(value, (list, tuple)) else [value]
+    values = list(value) if isinstance(value, (list, tuple)) else [value]
+    if not values:
+        raise GridError(f"grid field {name!r} is empty: it needs at least one value")
+    return values
 
 
 def _choose(values: list, valid, name: str) -> list:
@@ -100,7 +103,7 @@ def _choose(values: list, valid, name: str) -> list:
 
 @dataclass
 class Grid:
-    """A parsed, validated grid file (field docs: configs/bench/README.md)."""
+    """A parsed, validated grid file (fields: README, "The benchmark")."""
 
     name: str
     tasks: list[str]
