@@ -15,8 +15,8 @@ import gymnasium as gym
 import numpy as np
 
 from benchmarks.common import write
-from lerobot_obsbench.datasets import schema
-from lerobot_obsbench.envs.experts import EXPERTS
+from lerobot_obsbench import schema
+from lerobot_obsbench.envs.task import TASKS
 from lerobot_obsbench.envs.maniskill import ObsBenchEnv, import_maniskill
 
 
@@ -74,7 +74,7 @@ def main() -> None:
     plugin.close()
 
     demos = {}
-    for task, expert_cls in EXPERTS.items():
+    for task, expert_cls in ((name, spec.expert) for name, spec in TASKS.items() if spec.expert):
         ours = ObsBenchEnv(task, image_size=args.size)
 
         def plugin_step(action, env=ours):

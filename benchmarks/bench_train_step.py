@@ -23,12 +23,11 @@ from benchmarks.common import load_synthetic, timed, write
 from lerobot_obsbench.policies import ObsACTConfig, ObsDiffusionConfig
 from lerobot_obsbench.policies.obs_act.modeling_obs_act import ObsACTPolicy
 from lerobot_obsbench.policies.obs_diffusion.modeling_obs_diffusion import ObsDiffusionPolicy
-from lerobot_obsbench.presets import PRESETS
+from lerobot_obsbench.presets import PRESETS, preset_overrides
 
 CAM = "base_camera"
 PAIRS = [("rgb", "resnet18"), ("depth", "resnet18"), ("rgbd", "resnet18"), ("pointmap", "resnet18"),
          ("pointcloud", "pointnet")]
-STOCK_ONLY = {"num_tokens", "knn", "encoder"}
 
 
 def features(size: int) -> tuple[dict, dict]:
@@ -92,8 +91,7 @@ def main() -> None:
         ("act", ACTConfig, ACTPolicy, ObsACTConfig, ObsACTPolicy),
         ("diffusion", DiffusionConfig, DiffusionPolicy, ObsDiffusionConfig, ObsDiffusionPolicy),
     ):
-        sizes = dict(PRESETS[args.preset][f"obs_{kind}"])
-        common = {k: v for k, v in sizes.items() if k not in STOCK_ONLY}
+        common = dict(PRESETS[args.preset][f"obs_{kind}"])  # model sizes, shared by stock and plugin policies
         stock_extra = {"pretrained_backbone_weights": None}
         if kind == "diffusion":
             stock_extra["crop_shape"] = None
@@ -113,7 +111,8 @@ def main() -> None:
         print(f"stock {kind}-resnet18: {base['median_ms']:.0f} ms")
         pairs = PAIRS + ([("pointcloud", "pointnet@2048")] if kind == "act" else [])
         for space, encoder in pairs:
-            extra = dict(sizes, encoder=encoder.split("@")[0], workspace=list(WORKSPACE))
+            extra = dict(preset_overrides(args.preset, f"obs_{kind}", space), encoder=encoder.split("@")[0],
+                         workspace=list(WORKSPACE))
             if "@" in encoder:
                 extra["num_tokens"] = int(encoder.split("@")[1])
             cfg = ours_cls(device=args.device, obs_space=space, input_features=dict(inputs), output_features=outputs,

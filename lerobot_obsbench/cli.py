@@ -10,7 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from lerobot_obsbench.datasets.schema import OBS_SPACES, SchemaError, validate_features
+from lerobot_obsbench.schema import OBS_SPACES, POLICY_TYPES, SchemaError, validate_features
 
 
 def cmd_encoders(args: argparse.Namespace) -> int:
@@ -62,7 +62,7 @@ def cmd_doctor(args: argparse.Namespace) -> int:
     import time
 
     from lerobot_obsbench.envs.maniskill import ObsBenchEnv, RenderingError
-    from lerobot_obsbench.envs.tasks import TASKS, asset_help, missing_assets
+    from lerobot_obsbench.envs.task import TASKS, asset_help, missing_assets
 
     problems = 0
     try:
@@ -156,6 +156,11 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from lerobot_obsbench.bench.grid import preset_grids
+    from lerobot_obsbench.envs.maniskill import CONTROL_MODES, DEFAULT_CONTROL_MODE
+    from lerobot_obsbench.envs.task import DEMO_SEED_START
+    from lerobot_obsbench.presets import PRESETS
+
     parser = argparse.ArgumentParser(prog="obsbench", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -178,8 +183,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--image-size", type=int, default=128)
     p.add_argument("--cameras", nargs="+", default=["base_camera"])
-    p.add_argument("--seed-start", type=int, default=100_000, help="first demonstration seed (>= 100000; "
-                   "lower seeds are reserved for evaluation)")
+    p.add_argument("--seed-start", type=int, default=DEMO_SEED_START, help=f"first demonstration seed (>= "
+                   f"{DEMO_SEED_START}; lower seeds are reserved for evaluation and checkpoint selection)")
     p.set_defaults(func=cmd_demos)
 
     p = sub.add_parser("import-h5", help="convert official ManiSkill trajectories (.h5 + .json) into the schema by "
@@ -198,7 +203,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", type=int, default=50)
     p.add_argument("--env.image_size", dest="image_size", type=int, default=None,
                    help="default: the resolution the policy was trained on")
-    p.add_argument("--env.control_mode", dest="control_mode", default="pd_ee_delta_pose")
+    p.add_argument("--env.control_mode", dest="control_mode", default=DEFAULT_CONTROL_MODE, choices=CONTROL_MODES)
     p.add_argument("--env.episode_length", dest="episode_length", type=int, default=None)
     p.add_argument("--env.asset_dir", dest="asset_dir", default=None)
     p.add_argument("--env.perturbation", dest="perturbation", default=None,
@@ -215,7 +220,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="run a benchmark grid (YAML file or preset name: quick, paper-main, ...): "
                                     "demos -> lerobot-train -> eval -> results.jsonl; resumable")
-    p.add_argument("grid", help="grid YAML file, or the name of a preset in configs/bench/")
+    p.add_argument("grid", help=f"grid YAML file, or the name of a preset grid: {', '.join(preset_grids())}")
     p.add_argument("--out", type=Path, default=None, help="output directory (default outputs/bench/<grid name>)")
     p.add_argument("--workers", type=int, default=1, help="runs executed in parallel local processes")
     p.add_argument("--device", default="cpu", help="torch device for training and evaluation (cpu, cuda)")
@@ -235,8 +240,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_report)
 
     p = sub.add_parser("preset", help="print the --policy.* overrides of a named preset, to paste into lerobot-train")
-    p.add_argument("--preset", default="cpu", choices=("paper", "cpu", "tiny"))
-    p.add_argument("--policy", default="obs_act", choices=("obs_act", "obs_diffusion"))
+    p.add_argument("--preset", default="cpu", choices=tuple(PRESETS))
+    p.add_argument("--policy", default=POLICY_TYPES[0], choices=POLICY_TYPES)
     p.add_argument("--obs-space", default="pointcloud", choices=OBS_SPACES)
     p.set_defaults(func=cmd_preset)
     return parser
@@ -247,7 +252,7 @@ def main(argv: list[str] | None = None) -> int:
     import lerobot_obsbench  # noqa: F401  (registers policies and encoders)
     from lerobot_obsbench.bench.grid import GridError
     from lerobot_obsbench.bench.report import ReportError
-    from lerobot_obsbench.envs.tasks import TaskError
+    from lerobot_obsbench.envs.task import TaskError
 
     try:
         return args.func(args)

@@ -15,9 +15,6 @@ import torch
 from scipy.spatial import cKDTree
 from torch import Tensor
 
-FRAMES = ("world", "camera", "ee")
-
-
 def unproject_depth(depth: Tensor, K: Tensor) -> Tensor:
     """Camera-frame points (B, H, W, 3) of a metric depth map (B, H, W) with intrinsics K (B, 3, 3)."""
     _, h, w = depth.shape

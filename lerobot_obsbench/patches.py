@@ -10,6 +10,10 @@
 2. Video decoding. LeRobot picks torchcodec whenever the package is installed, even when its FFmpeg shared
    libraries are missing and it cannot load; then decode with the `pyav` backend instead of crashing.
 
+Both replace LeRobot functions for every process that imports the plugin (LeRobot's plugin discovery imports it
+into every `lerobot-*` command), so `apply()` patches only the LeRobot version they were written and tested
+for (`LEROBOT_VERSION`); on any other it warns and leaves LeRobot as it is.
+
 `stock_loading()` restores LeRobot's behaviour for the equivalence test and the loading benchmark.
 """
 
@@ -18,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import logging
+from importlib import metadata
 
 import datasets
 import PIL.Image
@@ -30,6 +35,7 @@ from torchvision.transforms.functional import to_tensor
 logger = logging.getLogger(__name__)
 
 FORMAT_TYPE = "lerobot_obsbench_torch"
+LEROBOT_VERSION = "0.4.4"  # the version these patches replace functions of
 _STOCK = {
     "query": lerobot_dataset.LeRobotDataset._query_hf_dataset,
     "load": lerobot_dataset.LeRobotDataset.load_hf_dataset,
@@ -102,9 +108,16 @@ def _set(query, load) -> None:
     lerobot_dataset.LeRobotDataset.load_hf_dataset = load
 
 
-def apply() -> None:
+def apply(lerobot_version: str | None = None) -> bool:
+    """Patch LeRobot if it is the version the patches were written for; returns whether it patched."""
+    version = lerobot_version or metadata.version("lerobot")
+    if version != LEROBOT_VERSION:
+        logger.warning("lerobot_obsbench: LeRobot %s is installed, the dataset-loading fixes were written for %s; "
+                       "leaving LeRobot unpatched (loading depth datasets may be slow).", version, LEROBOT_VERSION)
+        return False
     _set(query_hf_dataset_by_column, load_hf_dataset_fast)
     lerobot_dataset.decode_video_frames = decode_video_frames_with_fallback
+    return True
 
 
 @contextlib.contextmanager

@@ -14,45 +14,26 @@ space is never baked into stored data.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 from torch import Tensor, nn
 
 from lerobot_obsbench import geometry
-from lerobot_obsbench.datasets.schema import (
+from lerobot_obsbench.schema import (
+    FRAMES,
+    POINT_FEATURES,
+    PointCloud,
     SchemaError,
     cam2world_key,
+    check_choice,
     check_obs_space,
     depth_key,
     image_key,
     intrinsics_key,
 )
 
-POINT_FEATURES = {"rgb+xyz": 6, "xyz": 3, "rgb": 3}
-IMAGE_CHANNELS = {"rgb": 3, "depth": 1, "rgbd": 4, "pointmap": 6}
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 DEFAULT_WORKSPACE = (-1.0, 1.0, -1.0, 1.0, 0.005, 1.0)
-
-
-@dataclass
-class PointCloud:
-    xyz: Tensor  # (B, N, 3) metres in the chosen frame
-    features: Tensor  # (B, N, C)
-    mask: Tensor  # (B, N) True for real points
-
-
-def check_point_features(point_features: str) -> str:
-    if point_features not in POINT_FEATURES:
-        raise ValueError(f"Unknown point_features {point_features!r}; choose one of {', '.join(POINT_FEATURES)}.")
-    return point_features
-
-
-def check_frame(frame: str) -> str:
-    if frame not in geometry.FRAMES:
-        raise ValueError(f"Unknown frame {frame!r}; choose one of {', '.join(geometry.FRAMES)}.")
-    return frame
 
 
 def check_geometry(workspace, voxel_size: float, depth_clip) -> None:
@@ -63,13 +44,6 @@ def check_geometry(workspace, voxel_size: float, depth_clip) -> None:
         raise ValueError(f"voxel_size must be > 0 metres; got {voxel_size}")
     if len(depth_clip) != 2 or not depth_clip[0] < depth_clip[1]:
         raise ValueError(f"depth_clip must be (near, far) in metres with near < far; got {depth_clip}")
-
-
-def input_channels(obs_space: str, point_features: str = "rgb+xyz") -> int:
-    """Channels the encoder receives: image channels, or per-point feature size for point clouds."""
-    if check_obs_space(obs_space) == "pointcloud":
-        return POINT_FEATURES[check_point_features(point_features)]
-    return IMAGE_CHANNELS[obs_space]
 
 
 class ObservationAdapter(nn.Module):
@@ -89,8 +63,8 @@ class ObservationAdapter(nn.Module):
         check_geometry(workspace, voxel_size, depth_clip)
         self.obs_space = check_obs_space(obs_space)
         self.cameras = list(cameras)
-        self.frame = check_frame(frame)
-        self.point_features = check_point_features(point_features)
+        self.frame = check_choice("frame", frame, FRAMES)
+        self.point_features = check_choice("point_features", point_features, POINT_FEATURES)
         self.workspace = tuple(float(w) for w in workspace)
         self.voxel_size = float(voxel_size)
         self.depth_clip = (float(depth_clip[0]), float(depth_clip[1]))

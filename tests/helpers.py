@@ -2,10 +2,24 @@
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 import torch
 
 CAM = "base_camera"
+
+
+@contextlib.contextmanager
+def one_thread():
+    """Run torch (and spconv's CPU kernels, which use torch's thread pool) on one thread: their reductions
+    then add in a fixed order, so results do not depend on the machine's core count."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
 
 
 def frame_batch(synthetic, batch_size: int = 2, size: int = 32, seed: int = 0, cam: str = CAM) -> dict:

@@ -8,8 +8,8 @@ import pytest
 import torch
 
 from lerobot_obsbench.cli import main
-from lerobot_obsbench.policies.common import OneCycleSchedulerConfig
-from lerobot_obsbench.presets import preset_args
+from lerobot_obsbench.policies.onecycle import OneCycleSchedulerConfig
+from lerobot_obsbench.presets import preset_args, preset_encoder, preset_overrides
 
 
 def test_encoders_lists_spaces(capsys):
@@ -47,6 +47,20 @@ def test_preset_flags_parse_back(capsys):
     assert preset_args("paper", "obs_act", "rgb") == []
     with pytest.raises(ValueError, match="Unknown preset"):
         preset_args("gpu", "obs_act", "rgb")
+
+
+def test_presets_set_only_what_the_space_uses():
+    assert "num_tokens" not in preset_overrides("cpu", "obs_act", "rgb")  # a point field would be refused for rgb
+    assert preset_overrides("cpu", "obs_act", "pointcloud")["num_tokens"] == 128
+    assert "encoder" not in preset_overrides("cpu", "obs_act", "pointcloud")
+    assert [preset_encoder(p, s) for p in ("paper", "cpu") for s in ("rgbd", "pointcloud")] == [
+        "resnet50", "pointnet", "resnet18", "pointnet"]
+    from lerobot_obsbench.policies import ObsACTConfig, ObsDiffusionConfig
+
+    for preset in ("paper", "cpu", "tiny"):  # every preset builds for every space
+        for space in ("rgb", "depth", "rgbd", "pointmap", "pointcloud"):
+            ObsACTConfig(device="cpu", obs_space=space, **preset_overrides(preset, "obs_act", space))
+            ObsDiffusionConfig(device="cpu", obs_space=space, **preset_overrides(preset, "obs_diffusion", space))
 
 
 def test_onecycle_schedule_follows_the_paper():

@@ -6,10 +6,20 @@ import pytest
 import torch
 import torchvision
 
-from lerobot_obsbench.encoders import available_encoders, encoder_info, make_encoder
-from lerobot_obsbench.encoders.pointnet import sine_embedding_3d
+from lerobot_obsbench.encoders import (
+    EncoderContext,
+    EncoderOutput,
+    available_encoders,
+    default_encoder,
+    encoder_info,
+    encoder_output,
+    make_encoder,
+    register_encoder,
+)
+from lerobot_obsbench.encoders.point_tokenizer import sine_embedding_3d
 from lerobot_obsbench.encoders.pretrained import CheckpointError
-from lerobot_obsbench.spaces import ObservationAdapter, PointCloud
+from lerobot_obsbench.schema import PointCloud, input_channels
+from lerobot_obsbench.spaces import ObservationAdapter
 from tests.helpers import CAM, frame_batch
 
 
@@ -26,14 +36,67 @@ def test_registry_declares_spaces_and_refuses_wrong_pairs():
         make_encoder("vit_h", "rgb")
 
 
+def test_registry_states_its_contract():
+    # one default per space, declared in the registry
+    assert [default_encoder(s) for s in ("rgb", "depth", "rgbd", "pointmap", "pointcloud")] == [
+        "resnet50", "resnet50", "resnet50", "resnet50", "pointnet"]
+    # options come from the builder's signature; a typo is refused, naming the accepted ones
+    assert encoder_info("pointnet").options == ("point_features", "sampling", "num_tokens", "knn")
+    with pytest.raises(TypeError, match=r"'pointnet' takes no option\(s\) \['num_token'\]; it accepts: point_features, "
+                       "sampling, num_tokens, knn"):
+        make_encoder("pointnet", "pointcloud", num_token=64)
+    with pytest.raises(TypeError, match=r"'resnet18' takes no option\(s\) \['knn'\]; it accepts: pretrained"):
+        encoder_output("resnet18", "rgb", knn=4)
+
+    def build(obs_space, output, dim):
+        return torch.nn.Identity()
+
+    with pytest.raises(ValueError, match="'resnet18' is already registered"):
+        register_encoder("resnet18", ("rgb",), "a second resnet18", lambda *a: EncoderOutput(None, 1))(build)
+    with pytest.raises(ValueError, match="'resnet50' is already the default encoder of 'rgb'"):
+        register_encoder("other", ("rgb",), "x", lambda *a: EncoderOutput(None, 1), default_for=("rgb",))(build)
+
+    def swallowing(obs_space, output, dim, **anything):
+        return torch.nn.Identity()
+
+    with pytest.raises(ValueError, match=r"must name its options \(no \*args / \*\*kwargs\)"):
+        register_encoder("swallower", ("rgb",), "x", lambda *a: EncoderOutput(None, 1))(swallowing)
+    assert "other" not in available_encoders() and "swallower" not in available_encoders()
+
+
+@pytest.mark.parametrize("output", ["tokens", "global"])
+@pytest.mark.parametrize("name,space,options", [
+    ("resnet18", "rgb", {}), ("resnet18", "pointmap", {}), ("vit_b", "depth", {"image_size": (48, 64)}),
+    ("multivit_b", "rgbd", {}), ("pointnet", "pointcloud", {"num_tokens": 24, "knn": 4}),
+    ("pointnet", "pointcloud", {"num_tokens": 24, "knn": 4, "sampling": "pre"}),
+])
+def test_declared_output_is_what_the_encoder_outputs(name, space, options, output, cloud):
+    """`encoder_output` answers before anything is built, for one or several cameras."""
+    for cameras in (1, 2):
+        declared = encoder_output(name, space, output, dim=40, context=EncoderContext(cameras, (48, 64)), **options)
+        encoder = make_encoder(name, space, output, dim=40, **options).eval()
+        with torch.no_grad():
+            if space == "pointcloud":  # cameras are fused into one cloud
+                result = encoder(cloud)
+            else:
+                result = encoder(torch.randn(2, cameras, input_channels(space), 48, 64))
+        if output == "tokens":
+            tokens, pos = result
+            assert declared.tokens is not None and tokens.shape[1:] == (declared.tokens, declared.width) == pos.shape[1:]
+        else:
+            assert declared.tokens is None and result.shape[1:] == (declared.width,)
+
+
 @pytest.mark.parametrize("space,channels", [("rgb", 3), ("depth", 1), ("rgbd", 4), ("pointmap", 6)])
 def test_resnet_any_channel_count_tokens_and_global(space, channels):
     images = torch.randn(2, 2, channels, 64, 64)  # two cameras
     tok_enc = make_encoder("resnet18", space, output="tokens", dim=32)
     tokens, pos = tok_enc(images)
-    assert tokens.shape == (2, 2 * 2 * 2, 32) and pos.shape == (1, 8, 32) and tok_enc.out_dim == 32
+    assert tokens.shape == (2, 2 * 2 * 2, 32) and pos.shape == (1, 8, 32)
+    assert encoder_output("resnet18", space, "tokens", dim=32, context=EncoderContext(2, (64, 64))) == EncoderOutput(8, 32)
     glob = make_encoder("resnet18", space, output="global")
-    assert glob(images).shape == (2, 2 * 512) and glob.out_dim == 512
+    assert glob(images).shape == (2, 2 * 512)
+    assert encoder_output("resnet18", space, "global", context=EncoderContext(2, (64, 64))) == EncoderOutput(None, 1024)
 
 
 def _save_torchvision_resnet18(path):
@@ -100,7 +163,8 @@ def test_pointnet_tokens_and_global(cloud, sampling):
     assert tokens.shape == (3, 32, 48) and pos.shape == (3, 32, 48)
     assert torch.isfinite(tokens).all()
     glob = make_encoder("pointnet", "pointcloud", output="global", num_tokens=32, knn=8, sampling=sampling)
-    assert glob(cloud).shape == (3, 512) and glob.out_dim == 512
+    assert glob(cloud).shape == (3, 512)
+    assert encoder_output("pointnet", "pointcloud", "global", sampling=sampling) == EncoderOutput(None, 512)
 
 
 def _with_padding(cloud: PointCloud, extra: int) -> PointCloud:

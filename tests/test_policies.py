@@ -8,7 +8,7 @@ from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 from lerobot.datasets.utils import dataset_to_policy_features
 from safetensors.torch import load_file
 
-from lerobot_obsbench.datasets.schema import SchemaError
+from lerobot_obsbench.schema import SchemaError
 from lerobot_obsbench.policies import ObsACTConfig, ObsDiffusionConfig
 from lerobot_obsbench.policies.obs_act.modeling_obs_act import ObsACTPolicy
 from lerobot_obsbench.policies.obs_diffusion.modeling_obs_diffusion import ObsDiffusionPolicy
@@ -132,7 +132,7 @@ def test_env_passthrough_reaches_the_policy(tiny_dataset, policy_type):
     parameters in `robot_state`) gives the same action as the same frame presented like a dataset batch."""
     from lerobot.envs.utils import preprocess_observation
 
-    from lerobot_obsbench.datasets import schema
+    from lerobot_obsbench import schema
 
     policy, pre, _, dataset = training_setup(policy_type, "pointcloud", tiny_dataset)
     sample = dataset[5]

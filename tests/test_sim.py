@@ -19,7 +19,7 @@ import pytest
 import torch
 
 from lerobot_obsbench import geometry
-from lerobot_obsbench.datasets import schema
+from lerobot_obsbench import schema
 from lerobot_obsbench.envs import ObsBenchEnvConfig, TaskError
 from lerobot_obsbench.envs.maniskill import ObsBenchEnv
 
@@ -215,7 +215,7 @@ def test_import_maniskill_trajectories_written_by_record_episode(tmp_path):
     from mani_skill.utils.wrappers.record import RecordEpisode
 
     from lerobot_obsbench.datasets.maniskill_import import import_trajectories
-    from lerobot_obsbench.envs.experts import PickCubeExpert
+    from lerobot_obsbench.envs.tasks.pick_cube import PickCubeExpert
 
     raw = gym.make("PickCube-v1", obs_mode="none", control_mode="pd_ee_delta_pose", num_envs=1)
     recorder = RecordEpisode(raw, str(tmp_path / "ms"), save_trajectory=True, trajectory_name="pick", save_video=False)
@@ -284,13 +284,11 @@ def test_doctor_reports_rendering_and_tasks_in_plain_words():
 
 
 def test_peg_insertion_reports_grasp_align_insert():
-    from lerobot_obsbench.envs.experts import make_expert
-
     env = ObsBenchEnv("PegInsertionSide-v1", image_size=32)
     _, info = env.reset(seed=100_000)
     assert info == {"is_success": False, "sub_success/grasp": False, "sub_success/align": False,
                     "sub_success/insert": False}
-    expert, history = make_expert("PegInsertionSide-v1", env), []
+    expert, history = env.spec_.make_expert(env), []
     for _ in range(100):
         action = expert.act()
         if action is None:

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from lerobot_obsbench import geometry
-from lerobot_obsbench.datasets.schema import SchemaError
+from lerobot_obsbench.schema import SchemaError
 from lerobot_obsbench.spaces import ObservationAdapter
 from tests.helpers import CAM, frame_batch
 

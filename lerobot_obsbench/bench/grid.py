@@ -14,18 +14,19 @@ import itertools
 import json
 import math
 from dataclasses import asdict, dataclass, field
+from importlib import resources
 from pathlib import Path
 
 import yaml
 
-from lerobot_obsbench.datasets.schema import OBS_SPACES
+from lerobot_obsbench.envs.maniskill import DEFAULT_CONTROL_MODE
 from lerobot_obsbench.envs.perturbations import parse_perturbation
-from lerobot_obsbench.envs.tasks import TASKS, task_spec
-from lerobot_obsbench.presets import PRESETS, default_encoder
+from lerobot_obsbench.envs.task import TASKS, task_spec
+from lerobot_obsbench.presets import PRESETS, preset_encoder, preset_overrides
+from lerobot_obsbench.schema import OBS_SPACES, POLICY_TYPES
 
-POLICIES = ("obs_act", "obs_diffusion")
-# Preset grids live in the source checkout (README installs the plugin editable from it).
-PRESET_DIR = Path(__file__).resolve().parents[2] / "configs" / "bench"
+# Preset grids ship inside the package (package data), so `obsbench run quick` works from any install.
+PRESET_GRIDS = resources.files("lerobot_obsbench.bench") / "grids"
 
 
 class GridError(ValueError):
@@ -119,7 +120,7 @@ class Grid:
     epochs: float | dict[str, float] | None = None
     image_size: int = 128
     cameras: list[str] = field(default_factory=lambda: ["base_camera"])
-    control_mode: str = "pd_ee_delta_pose"
+    control_mode: str = DEFAULT_CONTROL_MODE
     eval_episodes: int = 50
     perturbations: list[str] = field(default_factory=list)
     policy_overrides: dict[str, object] = field(default_factory=dict)
@@ -157,14 +158,14 @@ def _resolve_encoders(spec, spaces: list[str], preset: str) -> dict[str, list[st
     from lerobot_obsbench.encoders import available_encoders, check_encoder
 
     if spec is None:
-        return {s: [default_encoder(preset, s)] for s in spaces}
+        return {s: [preset_encoder(preset, s)] for s in spaces}
     if isinstance(spec, dict):
         extra = [s for s in spec if s not in spaces]
         if extra:
             raise GridError(f"encoders names spaces {extra} that are not in obs_spaces {spaces}")
         resolved = {}
         for space in spaces:
-            names = _as_list(spec.get(space, default_encoder(preset, space)), f"encoders.{space}")
+            names = _as_list(spec.get(space, preset_encoder(preset, space)), f"encoders.{space}")
             for name in names:
                 try:
                     check_encoder(name, space)
@@ -204,7 +205,7 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
     for task in tasks:
         task_spec(task)
     spaces = _choose(_as_list(values.get("obs_spaces"), "obs_spaces"), list(OBS_SPACES), "obs_spaces")
-    policies = _choose(_as_list(values.get("policies", ["obs_act"]), "policies"), list(POLICIES), "policies")
+    policies = _choose(_as_list(values.get("policies", ["obs_act"]), "policies"), list(POLICY_TYPES), "policies")
     preset = values.get("preset", "cpu")
     _choose([preset], list(PRESETS), "preset")
     grid = Grid(
@@ -232,8 +233,8 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
             raise GridError(f"{name}: {err}") from None
     if len(set(grid.perturbations)) != len(grid.perturbations):
         raise GridError(f"{name}: perturbations are listed twice: {grid.perturbations}")
-    if grid.control_mode != "pd_ee_delta_pose":
-        raise GridError(f"{name}: the scripted experts record demos with control_mode pd_ee_delta_pose; got "
+    if grid.control_mode != DEFAULT_CONTROL_MODE:
+        raise GridError(f"{name}: the scripted experts record demos with control_mode {DEFAULT_CONTROL_MODE}; got "
                         f"{grid.control_mode!r}")
     if not grid.variants or not all(isinstance(v, dict) for v in grid.variants):
         raise GridError(f"{name}: variants is a list of mappings of --policy.* fields, e.g. [{{}}, {{sampling: pre}}]")
@@ -245,8 +246,6 @@ def check_policy_configs(grid: Grid, name: str) -> None:
     """Build each distinct policy config of the grid now, so an unknown field or a value that does not fit the
     space / encoder (e.g. pre-sampling for rgb) fails before anything runs."""
     from lerobot.configs.policies import PreTrainedConfig
-
-    from lerobot_obsbench.presets import preset_overrides
 
     seen = set()
     for run in grid.expand():
@@ -267,14 +266,15 @@ def check_policy_configs(grid: Grid, name: str) -> None:
 
 
 def preset_grids() -> list[str]:
-    return sorted(p.stem for p in PRESET_DIR.glob("*.yaml"))
+    return sorted(p.name.removesuffix(".yaml") for p in PRESET_GRIDS.iterdir() if p.name.endswith(".yaml"))
 
 
-def resolve_grid_path(path_or_preset: str | Path) -> Path:
+def resolve_grid_path(path_or_preset: str | Path):
+    """A grid file's path, or the packaged preset grid of that name."""
     path = Path(path_or_preset)
     if path.is_file():
         return path
-    preset = PRESET_DIR / f"{path_or_preset}.yaml"
+    preset = PRESET_GRIDS / f"{path_or_preset}.yaml"
     if preset.is_file():
         return preset
     raise GridError(f"no grid file {str(path_or_preset)!r}; give a YAML path or a preset: {', '.join(preset_grids())}")
@@ -286,7 +286,7 @@ def load_grid(path_or_preset: str | Path) -> Grid:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as err:
         raise GridError(f"{path}: not valid YAML: {err}") from None
-    return parse_grid(data, name=path.stem)
+    return parse_grid(data, name=path.name.removesuffix(".yaml"))
 
 
 # Rough 2-core CPU costs per training sample (cpu: measured on the quick grid at 64 px, ~0.25 s per batch of 16)

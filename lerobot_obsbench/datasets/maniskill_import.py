@@ -15,9 +15,10 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from lerobot_obsbench.datasets import schema
 from lerobot_obsbench.datasets.recording import STAGING, assemble, save_episode_file
-from lerobot_obsbench.envs.tasks import TaskError, task_spec
+from lerobot_obsbench.envs.maniskill import DEFAULT_CONTROL_MODE
+from lerobot_obsbench.envs.task import TaskError, task_spec
+from lerobot_obsbench.schema import ACTION_KEY
 
 
 def read_trajectory_metadata(h5_path: Path) -> dict:
@@ -47,7 +48,7 @@ def import_trajectories(h5_path: Path, out: Path, image_size: int = 128, cameras
         task_spec(task)
     except TaskError as err:
         raise TaskError(f"{h5_path} records {task!r}, not an OBSBench task. {err}") from err
-    control_mode = meta["env_info"]["env_kwargs"].get("control_mode", "pd_ee_delta_pose")
+    control_mode = meta["env_info"]["env_kwargs"].get("control_mode", DEFAULT_CONTROL_MODE)
     episodes = [ep for ep in meta["episodes"] if not only_success or ep.get("success", True)]
     episodes = episodes[:max_episodes] if max_episodes else episodes
     if not episodes:
@@ -70,10 +71,10 @@ def import_trajectories(h5_path: Path, out: Path, image_size: int = 128, cameras
             frames = []
             for t, action in enumerate(actions):
                 env.unwrapped_ms.set_state_dict(common.batch(states[t]))
-                frames.append({**env.schema_frame(env.raw_observation()), schema.ACTION_KEY: action})
+                frames.append({**env.schema_frame(env.raw_observation()), ACTION_KEY: action})
             save_episode_file(target, {k: np.stack([fr[k] for fr in frames]) for k in frames[0]})
     env.close()
-    assemble(out, files, task, fps=20, repo_id=repo_id or f"local/obsbench_{task}_imported")
+    assemble(out, files, task, repo_id=repo_id or f"local/obsbench_{task}_imported")
     info = {"task": task, "source": str(h5_path), "episode_ids": [ep["episode_id"] for ep in episodes],
             "control_mode": control_mode, "image_size": image_size, "cameras": list(cameras)}
     (out / "obsbench_import.json").write_text(json.dumps(info, indent=2) + "\n")

@@ -18,25 +18,26 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from lerobot_obsbench.datasets import schema
-from lerobot_obsbench.envs.tasks import DEMO_SEED_START, task_spec
+from lerobot_obsbench.envs.maniskill import CONTROL_FPS
+from lerobot_obsbench.envs.task import DEMO_SEED_START, task_spec
+from lerobot_obsbench.schema import ACTION_KEY, DEPTH_PREFIX, IMAGE_PREFIX, env_observation_to_frame
 
 STAGING = ".episodes"
 SIDECAR = "obsbench_demos.json"
 DATASET_ENTRIES = ("meta", "data", "videos", "images", ".assembling")
 
 
-def rollout(env, expert_cls, seed: int) -> tuple[bool, dict[str, np.ndarray]]:
-    """One expert episode; returns (success, per-key stacked frames incl. `action`)."""
+def rollout(env, spec, seed: int) -> tuple[bool, dict[str, np.ndarray]]:
+    """One episode of the task's expert; returns (success, per-key stacked frames incl. `action`)."""
     obs, _ = env.reset(seed=seed)
-    expert = expert_cls(env)
+    expert = spec.make_expert(env)
     frames: list[dict[str, np.ndarray]] = []
     success = False
     while True:
         action = expert.act()
         if action is None:  # script finished without success
             break
-        frames.append({**schema.env_observation_to_frame(obs), schema.ACTION_KEY: action})
+        frames.append({**env_observation_to_frame(obs), ACTION_KEY: action})
         obs, _, terminated, truncated, info = env.step(action)
         if info["is_success"]:
             success = True
@@ -62,9 +63,9 @@ def _features(sample: dict[str, np.ndarray]) -> dict:
     feats = {}
     for key, value in sample.items():
         shape = tuple(value.shape[1:])
-        if key.startswith(schema.IMAGE_PREFIX):
+        if key.startswith(IMAGE_PREFIX):
             feats[key] = {"dtype": "video", "shape": shape, "names": ["height", "width", "channels"]}
-        elif key.startswith(schema.DEPTH_PREFIX):
+        elif key.startswith(DEPTH_PREFIX):
             feats[key] = {"dtype": "uint16", "shape": shape, "names": ["height", "width", "channels"]}
         else:
             feats[key] = {"dtype": "float32", "shape": shape, "names": None}
@@ -78,7 +79,7 @@ def save_episode_file(path: Path, frames: dict[str, np.ndarray]) -> None:
     os.replace(tmp, path)
 
 
-def assemble(out: Path, episode_files: list[Path], task: str, fps: int, repo_id: str) -> None:
+def assemble(out: Path, episode_files: list[Path], task: str, repo_id: str, fps: int = CONTROL_FPS) -> None:
     """(Re)write the LeRobotDataset in `out` from staged episode files, in the given order."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
@@ -92,7 +93,7 @@ def assemble(out: Path, episode_files: list[Path], task: str, fps: int, repo_id:
                                robot_type="panda", use_videos=True)
     description = task_spec(task).description
     for ep in tqdm(episodes, desc="writing dataset", unit="ep"):
-        for t in range(len(ep[schema.ACTION_KEY])):
+        for t in range(len(ep[ACTION_KEY])):
             ds.add_frame({**{k: v[t] for k, v in ep.items()}, "task": description})
         ds.save_episode()
     ds.finalize()
@@ -105,12 +106,11 @@ def record_demos(task: str, episodes: int, out: Path, image_size: int = 128, cam
                  seed_start: int = DEMO_SEED_START, max_attempts: int | None = None,
                  repo_id: str | None = None, keep_staging: bool = False) -> dict:
     """Record `episodes` successful expert demonstrations of `task` into `out` (resumable)."""
-    from lerobot_obsbench.envs.experts import EXPERTS, make_expert
     from lerobot_obsbench.envs.maniskill import ObsBenchEnv
 
-    task_spec(task)  # unknown task -> TaskError listing the valid ones
-    if task not in EXPERTS:
-        make_expert(task, None)  # raises the explanatory NotImplementedError
+    spec = task_spec(task)  # unknown task -> TaskError listing the valid ones
+    if spec.expert is None:
+        spec.make_expert(None)  # raises the explanatory NotImplementedError
     if seed_start < DEMO_SEED_START:
         raise ValueError(f"demonstration seeds must start at >= {DEMO_SEED_START} (below are evaluation seeds)")
     out = Path(out)
@@ -138,7 +138,7 @@ def record_demos(task: str, episodes: int, out: Path, image_size: int = 128, cam
             if seed in attempted:
                 seed += 1
                 continue
-            ok, frames = rollout(env, EXPERTS[task], seed)
+            ok, frames = rollout(env, spec, seed)
             if ok:
                 save_episode_file(staging / f"seed_{seed}.npz", frames)
                 successes.append(seed)
@@ -154,8 +154,7 @@ def record_demos(task: str, episodes: int, out: Path, image_size: int = 128, cam
         bar.close()
         env.close()
     seeds = sorted(successes)[:episodes]
-    assemble(out, [staging / f"seed_{s}.npz" for s in seeds], task, fps=20,
-             repo_id=repo_id or f"local/obsbench_{task}")
+    assemble(out, [staging / f"seed_{s}.npz" for s in seeds], task, repo_id=repo_id or f"local/obsbench_{task}")
     tried = len(attempted)
     info = {"task": task, "seeds": seeds, "expert_success_rate": round(len(successes) / tried, 4),
             "attempts": tried, "image_size": image_size, "cameras": list(cameras), "seed_start": seed_start}

@@ -1,21 +1,47 @@
-"""String-keyed encoder registry (in the spirit of timm's `create_model`).
+"""String-keyed encoder registry (in the spirit of timm's `create_model` and robomimic's encoder core).
 
-Each encoder declares the observation spaces it accepts; `make_encoder` refuses any other pair with a message
-listing the valid ones. An encoder built with `output="tokens"` returns `(tokens (B, S, D), pos (B|1, S, D))`
-for ACT's transformer; with `output="global"` it returns one feature vector (B, F) for Diffusion Policy's
-conditioning. `encoder.out_dim` is D or F.
+Each registered encoder states its contract:
+- the observation spaces it accepts (`make_encoder` refuses any other pair, listing the valid ones);
+- the keyword options its builder takes, read from the builder's signature (an unknown keyword is refused,
+  naming the accepted ones: a typo never passes silently);
+- what it outputs, before anything is built (`encoder_output`): with `output="tokens"`, `(tokens (B, S, D),
+  pos (B|1, S, D))` for ACT's transformer; with `output="global"`, one feature vector (B, F) for Diffusion
+  Policy's conditioning;
+- the spaces it is the default encoder of (one default per space; declared here only).
+
+Names are unique: registering a name twice is an error.
 """
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
 from dataclasses import dataclass
 
 from torch import nn
 
-from lerobot_obsbench.datasets.schema import OBS_SPACES, check_obs_space
+from lerobot_obsbench.schema import OBS_SPACES, check_obs_space
 
 OUTPUTS = ("tokens", "global")
+# Builder parameters every encoder has; the rest of a builder's signature are its options.
+BUILD_ARGS = ("obs_space", "output", "dim")
+
+
+@dataclass(frozen=True)
+class EncoderOutput:
+    """What an encoder produces per sample: `tokens` tokens of width `width` (ACT), or one feature vector of
+    size `width` (Diffusion Policy; `tokens` is None)."""
+
+    tokens: int | None
+    width: int
+
+
+@dataclass(frozen=True)
+class EncoderContext:
+    """What an encoder's declared output depends on besides its options: the camera count and frame size."""
+
+    cameras: int = 1
+    image_size: tuple[int, int] | None = None  # (height, width); None for point clouds
 
 
 @dataclass(frozen=True)
@@ -24,21 +50,47 @@ class EncoderInfo:
     spaces: tuple[str, ...]
     summary: str
     build: Callable[..., nn.Module]
+    # describe(obs_space, output, dim, context, options) -> EncoderOutput, with `options` the builder's
+    # keyword options as they will be passed (defaults filled in).
+    describe: Callable[..., EncoderOutput]
+    options: tuple[str, ...]
+    defaults: dict
     pretrained: str = ""  # which pretrained weights `pretrained=` accepts; empty: trained from scratch only
+    default_for: tuple[str, ...] = ()
 
 
 _REGISTRY: dict[str, EncoderInfo] = {}
 
 
-def register_encoder(name: str, spaces: tuple[str, ...], summary: str, pretrained: str = ""):
-    """Decorator registering `build(obs_space, output, **kwargs) -> nn.Module` under `name`; `pretrained` names
-    the weights its `pretrained=` argument loads (empty: none)."""
+def register_encoder(name: str, spaces: tuple[str, ...], summary: str, describe: Callable[..., EncoderOutput],
+                     pretrained: str = "", default_for: tuple[str, ...] = ()):
+    """Decorator registering `build(obs_space, output, dim, *, <options>) -> nn.Module` under `name`.
+
+    `describe` states the output for a configuration before building; `pretrained` names the weights the
+    `pretrained=` option loads (empty: none); `default_for` lists the spaces this encoder is the default of.
+    """
     unknown = set(spaces) - set(OBS_SPACES)
     if unknown:
         raise ValueError(f"encoder {name!r} declares unknown spaces {sorted(unknown)}")
+    if not set(default_for) <= set(spaces):
+        raise ValueError(f"encoder {name!r} cannot be the default of spaces it does not accept: {default_for}")
 
     def decorator(build: Callable[..., nn.Module]) -> Callable[..., nn.Module]:
-        _REGISTRY[name] = EncoderInfo(name, tuple(spaces), summary, build, pretrained)
+        if name in _REGISTRY:
+            raise ValueError(f"an encoder named {name!r} is already registered ({_REGISTRY[name].summary})")
+        params = inspect.signature(build).parameters
+        if any(p.kind in (p.VAR_KEYWORD, p.VAR_POSITIONAL) for p in params.values()):
+            raise ValueError(f"encoder {name!r}: the builder must name its options (no *args / **kwargs)")
+        if tuple(params)[: len(BUILD_ARGS)] != BUILD_ARGS:
+            raise ValueError(f"encoder {name!r}: the builder's first parameters must be {BUILD_ARGS}")
+        for space in default_for:
+            taken = [i.name for i in _REGISTRY.values() if space in i.default_for]
+            if taken:
+                raise ValueError(f"encoder {name!r}: {taken[0]!r} is already the default encoder of {space!r}")
+        options = tuple(params)[len(BUILD_ARGS) :]
+        defaults = {k: params[k].default for k in options if params[k].default is not inspect.Parameter.empty}
+        _REGISTRY[name] = EncoderInfo(name, tuple(spaces), summary, build, describe, options, defaults, pretrained,
+                                      tuple(default_for))
         return build
 
     return decorator
@@ -58,6 +110,15 @@ def encoder_info(name: str) -> EncoderInfo:
     return _REGISTRY[name]
 
 
+def default_encoder(obs_space: str) -> str:
+    """The registry's default encoder for `obs_space` (the paper's choice)."""
+    check_obs_space(obs_space)
+    for info in _REGISTRY.values():
+        if obs_space in info.default_for:
+            return info.name
+    raise ValueError(f"no encoder is registered as the default for obs_space={obs_space!r}")
+
+
 def valid_pairs() -> str:
     return "; ".join(f"{n}: {', '.join(i.spaces)}" for n, i in sorted(_REGISTRY.items()))
 
@@ -73,9 +134,24 @@ def check_encoder(name: str, obs_space: str) -> None:
         )
 
 
-def make_encoder(name: str, obs_space: str, output: str = "tokens", **kwargs) -> nn.Module:
-    """Build encoder `name` for `obs_space`; kwargs are encoder-specific (see each builder)."""
+def _checked(name: str, obs_space: str, output: str, options: dict) -> EncoderInfo:
     check_encoder(name, obs_space)
     if output not in OUTPUTS:
         raise ValueError(f"output must be one of {OUTPUTS}; got {output!r}")
-    return encoder_info(name).build(obs_space=obs_space, output=output, **kwargs)
+    info = encoder_info(name)
+    unknown = sorted(set(options) - set(info.options))
+    if unknown:
+        raise TypeError(f"encoder {name!r} takes no option(s) {unknown}; it accepts: {', '.join(info.options)}")
+    return info
+
+
+def make_encoder(name: str, obs_space: str, output: str = "tokens", dim: int = 512, **options) -> nn.Module:
+    """Build encoder `name` for `obs_space`; `options` are the encoder's own (`encoder_info(name).options`)."""
+    return _checked(name, obs_space, output, options).build(obs_space, output, dim, **options)
+
+
+def encoder_output(name: str, obs_space: str, output: str = "tokens", dim: int = 512,
+                   context: EncoderContext = EncoderContext(), **options) -> EncoderOutput:
+    """What `make_encoder(name, obs_space, output, dim, **options)` will output, without building it."""
+    info = _checked(name, obs_space, output, options)
+    return info.describe(obs_space, output, dim, context, {**info.defaults, **options})

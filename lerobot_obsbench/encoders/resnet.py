@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import torchvision
 from lerobot.policies.act.modeling_act import ACTSinusoidalPositionEmbedding2d
 from torch import Tensor, nn
@@ -13,11 +15,12 @@ from lerobot_obsbench.encoders.pretrained import (
     read_state_dict,
     strip_prefix,
 )
-from lerobot_obsbench.encoders.registry import register_encoder
-from lerobot_obsbench.spaces import input_channels
+from lerobot_obsbench.encoders.registry import EncoderContext, EncoderOutput, register_encoder
+from lerobot_obsbench.schema import IMAGE_SPACES, input_channels
 
-IMAGE_SPACES = ("rgb", "depth", "rgbd", "pointmap")
 R3M_PREFIX = "module.convnet."
+FEATURE_CHANNELS = {"resnet18": 512, "resnet50": 2048}  # layer4's channels
+STRIDE = 32  # layer4's total downsampling
 IMAGENET_WEIGHTS = {"resnet18": "ResNet18_Weights.IMAGENET1K_V1", "resnet50": "ResNet50_Weights.IMAGENET1K_V2"}
 
 
@@ -51,15 +54,11 @@ class ResNetEncoder(nn.Module):
             if "conv1.weight" in state and state["conv1.weight"].shape[1] == 3:
                 state["conv1.weight"] = expand_input_channels(state["conv1.weight"], in_channels)
             load_matching(net, state, source, allow_missing=("fc.",))
-        feature_channels = net.fc.in_features
-        self.body = nn.Sequential(*list(net.children())[:-2])  # up to layer4: (B, C, H/32, W/32)
+        self.body = nn.Sequential(*list(net.children())[:-2])  # up to layer4: (B, C, H/STRIDE, W/STRIDE)
         self.output = output
         if output == "tokens":
-            self.proj = nn.Conv2d(feature_channels, dim, kernel_size=1)
+            self.proj = nn.Conv2d(FEATURE_CHANNELS[arch], dim, kernel_size=1)
             self.pos = ACTSinusoidalPositionEmbedding2d(dim // 2)
-            self.out_dim = dim
-        else:
-            self.out_dim = feature_channels
 
     def forward(self, images: Tensor) -> Tensor | tuple[Tensor, Tensor]:
         """images (B, n_cam, C, H, W) -> tokens (B, n_cam*h*w, D) + pos (1, n_cam*h*w, D), or (B, n_cam*C')."""
@@ -72,18 +71,25 @@ class ResNetEncoder(nn.Module):
         return tokens.reshape(b, -1, tokens.shape[-1]), pos.to(tokens.dtype)
 
 
+def _describer(arch: str):
+    def describe(obs_space: str, output: str, dim: int, context: EncoderContext, options: dict) -> EncoderOutput:
+        if output == "global":
+            return EncoderOutput(None, context.cameras * FEATURE_CHANNELS[arch])
+        height, width = context.image_size
+        return EncoderOutput(context.cameras * math.ceil(height / STRIDE) * math.ceil(width / STRIDE), dim)
+
+    return describe
+
+
 def _builder(arch: str):
-    def build(obs_space: str, output: str, dim: int = 512, pretrained: str | None = None, **_: object):
+    def build(obs_space: str, output: str, dim: int, pretrained: str | None = None) -> ResNetEncoder:
         return ResNetEncoder(arch, input_channels(obs_space), output, dim=dim, pretrained=pretrained)
 
     return build
 
 
 register_encoder("resnet18", IMAGE_SPACES, "torchvision ResNet-18 (CPU presets); layer4 map -> tokens / pooled",
-                 pretrained="imagenet, or a torchvision-layout file")(
-    _builder("resnet18")
-)
+                 _describer("resnet18"), pretrained="imagenet, or a torchvision-layout file")(_builder("resnet18"))
 register_encoder("resnet50", IMAGE_SPACES, "torchvision ResNet-50 (paper, 23.5M); layer4 map -> tokens / pooled",
-                 pretrained="imagenet, a torchvision-layout file, or R3M (module.convnet.*)")(
-    _builder("resnet50")
-)
+                 _describer("resnet50"), pretrained="imagenet, a torchvision-layout file, or R3M (module.convnet.*)",
+                 default_for=IMAGE_SPACES)(_builder("resnet50"))

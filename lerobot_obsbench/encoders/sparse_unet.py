@@ -1,4 +1,20 @@
-"""The sparse U-Net network of `spunet34` (see `spunet.py`); importing this module needs spconv."""
+"""The sparse convolutional U-Net of `spunet34`: PonderV2 / Pointcept's SpUNet layout on spconv.
+
+Layout (the paper's SpUNet-34): a 5x5x5 submanifold stem to 32 channels; 4 encoder stages, each a stride-2
+sparse conv then (2, 3, 4, 6) residual blocks of two 3x3x3 submanifold convs (32-64-128-256 channels); 4
+decoder stages, each an inverse sparse conv, concatenation with the encoder skip and (2, 2, 2, 2) residual
+blocks (256-128-96-96 channels). Every conv is followed by BatchNorm (eps 1e-3, momentum 0.01) and ReLU.
+Module names follow PonderV2's checkpoint keys (`conv_input`, `down.N`, `enc.N.blockM`, `up.N`, `dec.N.blockM`).
+Initialised as Pointcept initialises it: submanifold convs from a truncated normal (std 0.02), the strided and
+inverse convs with spconv's default, norms at weight 1 / bias 0.
+
+Points are voxelized at `voxel_size` in the policy's frame (one voxel per point after the adapter's voxel
+sampling; duplicates share a voxel) and the per-voxel output features are scattered back to the points.
+
+Importing this module needs spconv. spconv 2.3.8's CPU wheel asks `torch.cuda.current_stream()` in its backward
+pass, which fails on a CUDA-built torch without a GPU; `import_spconv` makes that lookup return stream 0 when
+CUDA is unavailable (DESIGN §5). On a GPU machine install `spconv-cu126` instead; the code is the same.
+"""
 
 from __future__ import annotations
 
@@ -9,20 +25,49 @@ import torch
 from torch import Tensor, nn
 
 from lerobot_obsbench import geometry
-from lerobot_obsbench.encoders.spunet import (
-    DECODER_BLOCKS,
-    DECODER_CHANNELS,
-    ENCODER_BLOCKS,
-    ENCODER_CHANNELS,
-    STEM_CHANNELS,
-    import_spconv,
-)
+
+ENCODER_CHANNELS, ENCODER_BLOCKS = (32, 64, 128, 256), (2, 3, 4, 6)
+DECODER_CHANNELS, DECODER_BLOCKS = (256, 128, 96, 96), (2, 2, 2, 2)
+STEM_CHANNELS = 32
+# spconv drops an input voxel whose strided output index falls outside the output grid, so the grid must hold
+# every coordinate at each of the 4 stride-2 levels: a margin of 2**4 = 16 cells beyond the largest coordinate
+# is enough. Pointcept (whose layout PonderV2's weights use) adds 96; kept for parity, it changes no output.
+GRID_MARGIN = 96
+SPCONV_HELP = ("spunet34 needs spconv: `pip install spconv==2.3.8` (CPU wheel) or `pip install spconv-cu126` "
+               "(CUDA 12.x GPUs)")
+
+
+def _current_stream() -> int:
+    return torch.cuda.current_stream().cuda_stream if torch.cuda.is_available() else 0
+
+
+def import_spconv():
+    """`spconv.pytorch`, with its CUDA-stream lookup made safe on CPU-only machines."""
+    try:
+        import spconv.pytorch as sp
+        from spconv.pytorch import cppcore, ops, utils
+        from spconv.pytorch import hash as sp_hash
+    except ImportError as err:
+        raise ImportError(SPCONV_HELP) from err
+    for module in (cppcore, ops, sp_hash, utils):
+        if hasattr(module, "get_current_stream"):
+            module.get_current_stream = _current_stream
+    return sp
+
 
 spconv = import_spconv()
 
 
 def _norm(channels: int) -> nn.BatchNorm1d:
     return nn.BatchNorm1d(channels, eps=1e-3, momentum=0.01)
+
+
+def _init_weights(module: nn.Module) -> None:
+    if isinstance(module, spconv.SubMConv3d):
+        nn.init.trunc_normal_(module.weight, std=0.02)
+    elif isinstance(module, nn.BatchNorm1d):
+        nn.init.ones_(module.weight)
+        nn.init.zeros_(module.bias)
 
 
 class ConvNormReLU(nn.Module):
@@ -65,7 +110,7 @@ class SpUNet(nn.Module):
     def __init__(self, in_channels: int, voxel_size: float = 0.005):
         super().__init__()
         self.voxel_size = voxel_size
-        self.out_channels = DECODER_CHANNELS[-1]
+        self.out_channels = DECODER_CHANNELS[-1]  # = spunet34.OUT_CHANNELS
         self.conv_input = ConvNormReLU(spconv.SubMConv3d(in_channels, STEM_CHANNELS, kernel_size=5, padding=1,
                                                          bias=False, indice_key="stem"), STEM_CHANNELS)
         self.down, self.enc, self.up, self.dec = (nn.ModuleList() for _ in range(4))
@@ -86,6 +131,7 @@ class SpUNet(nn.Module):
             self.dec.append(spconv.SparseSequential(OrderedDict(
                 (f"block{i}", BasicBlock(width + skips[s] if i == 0 else width, width, f"subm{s}"))
                 for i in range(DECODER_BLOCKS[::-1][s]))))
+        self.apply(_init_weights)
 
     def voxelize(self, xyz: Tensor, mask: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """(voxel indices (M, 4) int32 [batch, x, y, z], index of each voxel's first point in the flat valid
@@ -101,7 +147,7 @@ class SpUNet(nn.Module):
 
     def forward(self, xyz: Tensor, features: Tensor, mask: Tensor) -> Tensor:
         indices, first, point_voxel = self.voxelize(xyz, mask)
-        shape = (indices[:, 1:].amax(dim=0) + 96).tolist()
+        shape = (indices[:, 1:].amax(dim=0) + GRID_MARGIN).tolist()
         x = spconv.SparseConvTensor(features[mask][first], indices, shape, mask.shape[0])
         x = self.conv_input(x)
         skips = [x]

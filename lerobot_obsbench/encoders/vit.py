@@ -25,10 +25,9 @@ from lerobot.policies.act.modeling_act import create_sinusoidal_pos_embedding
 from torch import Tensor, nn
 
 from lerobot_obsbench.encoders.pretrained import expand_input_channels, load_matching, read_state_dict
-from lerobot_obsbench.encoders.registry import register_encoder
-from lerobot_obsbench.spaces import input_channels
+from lerobot_obsbench.encoders.registry import EncoderContext, EncoderOutput, register_encoder
+from lerobot_obsbench.schema import IMAGE_SPACES, input_channels
 
-IMAGE_SPACES = ("rgb", "depth", "rgbd", "pointmap")
 WIDTH, DEPTH, HEADS, PATCH = 768, 12, 12, 16
 
 
@@ -39,7 +38,6 @@ class _CameraTokens(nn.Module):
         super().__init__()
         self.output = output
         self.proj = nn.Linear(width, dim) if output == "tokens" else None
-        self.out_dim = dim if output == "tokens" else width
 
     def forward(self, features: Tensor, batch: int) -> Tensor | tuple[Tensor, Tensor]:
         features = features.reshape(batch, -1, features.shape[-1])
@@ -52,7 +50,7 @@ class _CameraTokens(nn.Module):
 
 class ViTEncoder(nn.Module):
     def __init__(self, in_channels: int, output: str, dim: int = 512, pretrained: str | None = None,
-                 image_size: int = 224):
+                 image_size: tuple[int, int] = (224, 224)):
         super().__init__()
         from timm.models.vision_transformer import VisionTransformer
 
@@ -62,7 +60,6 @@ class ViTEncoder(nn.Module):
         if pretrained:
             self.load_mae(pretrained)
         self.head = _CameraTokens(WIDTH, output, dim)
-        self.out_dim = self.head.out_dim
 
     def load_mae(self, pretrained: str) -> dict:
         from timm.layers import resample_abs_pos_embed
@@ -117,7 +114,6 @@ class MultiViTEncoder(nn.Module):
         self.encoder = nn.Sequential(*[Block(WIDTH, HEADS, mlp_ratio=4.0, qkv_bias=True, norm_layer=norm)
                                        for _ in range(DEPTH)])
         self.head = _CameraTokens(WIDTH, output, dim)
-        self.out_dim = self.head.out_dim
         if pretrained:
             self.load_multimae(pretrained)
 
@@ -134,13 +130,22 @@ class MultiViTEncoder(nn.Module):
         return self.head(self.encoder(tokens)[:, -1], images.shape[0])
 
 
-@register_encoder("vit_b", IMAGE_SPACES, "ViT-B/16 (paper, 85.8M); [CLS] token", pretrained="VC-1 / MAE layout")
-def build_vit(obs_space: str, output: str, dim: int = 512, pretrained: str | None = None,
-              image_size: int | None = None, **_: object):
-    return ViTEncoder(input_channels(obs_space), output, dim=dim, pretrained=pretrained, image_size=image_size or 224)
+def describe_camera_tokens(obs_space: str, output: str, dim: int, context: EncoderContext,
+                           options: dict) -> EncoderOutput:
+    """One token per camera (ACT), or the cameras' features concatenated (Diffusion Policy)."""
+    return EncoderOutput(context.cameras, dim) if output == "tokens" else EncoderOutput(None, context.cameras * WIDTH)
 
 
-@register_encoder("multivit_b", ("rgbd",), "MultiMAE-style MultiViT-B (paper, 86.1M); rgb + depth patch "
-                  "adapters, global token", pretrained="MultiMAE")
-def build_multivit(obs_space: str, output: str, dim: int = 512, pretrained: str | None = None, **_: object):
+@register_encoder("vit_b", IMAGE_SPACES, "ViT-B/16 (paper, 85.8M); [CLS] token", describe_camera_tokens,
+                  pretrained="VC-1 / MAE layout")
+def build_vit(obs_space: str, output: str, dim: int, pretrained: str | None = None,
+              image_size: int | tuple[int, int] = 224) -> ViTEncoder:
+    """`image_size`: the camera frame size (height, width) or one side; the patch grid is built for it."""
+    size = (image_size, image_size) if isinstance(image_size, int) else tuple(image_size)
+    return ViTEncoder(input_channels(obs_space), output, dim=dim, pretrained=pretrained, image_size=size)
+
+
+@register_encoder("multivit_b", ("rgbd",), "MultiMAE-style MultiViT-B (paper, 86.1M); rgb + depth patch adapters, "
+                  "global token", describe_camera_tokens, pretrained="MultiMAE")
+def build_multivit(obs_space: str, output: str, dim: int, pretrained: str | None = None) -> MultiViTEncoder:
     return MultiViTEncoder(output, dim=dim, pretrained=pretrained)

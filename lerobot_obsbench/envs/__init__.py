@@ -5,14 +5,15 @@ Importing this package is cheap: ManiSkill itself is imported only when an env i
 
 import gymnasium as gym
 
+from lerobot_obsbench.envs import tasks  # noqa: F401  (registers every task module)
 from lerobot_obsbench.envs.configuration import ObsBenchEnvConfig
-from lerobot_obsbench.envs.tasks import TASKS, TaskError, eval_seeds, task_spec
+from lerobot_obsbench.envs.task import TASKS, TaskError, eval_seeds, task_spec
 
-for _name in TASKS:
+for _name, _task in TASKS.items():
     if f"obsbench/{_name}" not in gym.registry:
         # max_episode_steps here only declares the default; ObsBenchEnv passes the configured budget to
         # ManiSkill, and gym.make's TimeLimit (read by lerobot-eval as _max_episode_steps) follows the kwarg.
         gym.register(id=f"obsbench/{_name}", entry_point="lerobot_obsbench.envs.maniskill:make_obsbench_env",
-                     kwargs={"task": _name}, max_episode_steps=TASKS[_name].max_steps)
+                     kwargs={"task": _name}, max_episode_steps=_task.max_steps)
 
-__all__ = ["ObsBenchEnvConfig", "TASKS", "TaskError", "eval_seeds", "task_spec"]
+__all__ = ["TASKS", "ObsBenchEnvConfig", "TaskError", "eval_seeds", "task_spec"]

@@ -7,12 +7,10 @@ from dataclasses import dataclass, field
 from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
 
-from lerobot_obsbench.envs.maniskill import CONTROL_MODES, STATE_DIM
+from lerobot_obsbench.envs.maniskill import ACTION_DIMS, CONTROL_FPS, CONTROL_MODES, DEFAULT_CONTROL_MODE, STATE_DIM
 from lerobot_obsbench.envs.perturbations import parse_perturbation
-from lerobot_obsbench.envs.tasks import task_spec
-
-ACTION_DIMS = {"pd_ee_delta_pose": 7, "pd_joint_pos": 8}
-GOAL_DIMS = {"goal_pos": 3}
+from lerobot_obsbench.envs.task import task_spec
+from lerobot_obsbench.schema import ACTION_KEY, ENV_STATE_KEY, STATE_KEY, image_key
 
 
 @EnvConfig.register_subclass("obsbench")
@@ -24,13 +22,13 @@ class ObsBenchEnvConfig(EnvConfig):
     # PullCube-v1, LiftPegUpright-v1, PlugCharger-v1, TurnFaucet-v1 (needs downloaded assets).
     task: str = "PickCube-v1"
     # Control frequency of ManiSkill's tabletop tasks.
-    fps: int = 20
+    fps: int = CONTROL_FPS
     # Cameras to render (the paper: the single front `base_camera`).
     cameras: list[str] = field(default_factory=lambda: ["base_camera"])
     # Square image size of every camera (the paper: 128).
     image_size: int = 128
     # Robot controller: pd_ee_delta_pose (paper; 7-D action) or pd_joint_pos (8-D).
-    control_mode: str = "pd_ee_delta_pose"
+    control_mode: str = DEFAULT_CONTROL_MODE
     # Steps per episode; None = ManiSkill's budget for the task.
     episode_length: int | None = None
     # First seed used when reset() is called without one (then +1 per episode); None = unseeded.
@@ -49,14 +47,13 @@ class ObsBenchEnvConfig(EnvConfig):
         size = (self.image_size, self.image_size, 3)
         self.features = {"action": PolicyFeature(FeatureType.ACTION, (ACTION_DIMS[self.control_mode],)),
                          "agent_pos": PolicyFeature(FeatureType.STATE, (STATE_DIM,))}
-        self.features_map = {"action": "action", "agent_pos": "observation.state"}
+        self.features_map = {"action": ACTION_KEY, "agent_pos": STATE_KEY}
         for cam in self.cameras:
             self.features[f"pixels/{cam}"] = PolicyFeature(FeatureType.VISUAL, size)
-            self.features_map[f"pixels/{cam}"] = f"observation.images.{cam}"
-        if spec.goal_keys:
-            dim = sum(GOAL_DIMS[k] for k in spec.goal_keys)
-            self.features["environment_state"] = PolicyFeature(FeatureType.ENV, (dim,))
-            self.features_map["environment_state"] = "observation.environment_state"
+            self.features_map[f"pixels/{cam}"] = image_key(cam)
+        if spec.goal:
+            self.features["environment_state"] = PolicyFeature(FeatureType.ENV, (sum(spec.goal.values()),))
+            self.features_map["environment_state"] = ENV_STATE_KEY
 
     @property
     def package_name(self) -> str:

@@ -16,9 +16,9 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from lerobot_obsbench.datasets.schema import SchemaError
-from lerobot_obsbench.envs.maniskill import STATE_DIM, ObsBenchEnv
-from lerobot_obsbench.envs.tasks import eval_seeds, task_spec
+from lerobot_obsbench.envs.maniskill import CONTROL_FPS, DEFAULT_CONTROL_MODE, STATE_DIM, ObsBenchEnv
+from lerobot_obsbench.envs.task import eval_seeds, task_spec
+from lerobot_obsbench.schema import SchemaError
 from lerobot_obsbench.stats import wilson_interval
 
 
@@ -62,7 +62,7 @@ def _batched(obs):
 
 
 def evaluate(policy_path: str | Path, task: str, episodes: int, image_size: int | None = None,
-             control_mode: str = "pd_ee_delta_pose", episode_length: int | None = None, device: str = "cpu",
+             control_mode: str = DEFAULT_CONTROL_MODE, episode_length: int | None = None, device: str = "cpu",
              video_dir: Path | None = None, asset_dir: str | None = None, perturbation: str | None = None,
              progress: bool = True) -> dict:
     from lerobot.envs.utils import preprocess_observation
@@ -101,7 +101,7 @@ def evaluate(policy_path: str | Path, task: str, episodes: int, image_size: int 
             from lerobot.utils.io_utils import write_video
 
             video_dir.mkdir(parents=True, exist_ok=True)
-            write_video(str(video_dir / f"{task}_seed{seed}.mp4"), np.stack(frames), fps=20)
+            write_video(str(video_dir / f"{task}_seed{seed}.mp4"), np.stack(frames), fps=CONTROL_FPS)
         wins = sum(r["success"] for r in records)
         bar.set_postfix(success=f"{wins}/{len(records)}")
     env.close()

@@ -21,12 +21,25 @@ import os
 import gymnasium as gym
 import numpy as np
 
-from lerobot_obsbench.datasets import schema
 from lerobot_obsbench.envs.perturbations import apply_scene_perturbation, camera_overrides, parse_perturbation
-from lerobot_obsbench.envs.tasks import TaskError, asset_help, missing_assets, task_spec
+from lerobot_obsbench.envs.task import TaskError, asset_help, first, missing_assets, task_spec, to_numpy
+from lerobot_obsbench.schema import (
+    ENV_STATE_KEY,
+    STATE_KEY,
+    cam2world_key,
+    depth_key,
+    frame_to_env_observation,
+    image_key,
+    intrinsics_key,
+)
 
-CONTROL_MODES = ("pd_ee_delta_pose", "pd_joint_pos")
-STATE_DIM = 16
+# ManiSkill's tabletop tasks step their controllers at 20 Hz: the rate demonstrations are recorded at.
+CONTROL_FPS = 20
+# Controller -> action size; the paper's is the first (Δpos, Δrot axis-angle, gripper).
+ACTION_DIMS = {"pd_ee_delta_pose": 7, "pd_joint_pos": 8}
+CONTROL_MODES = tuple(ACTION_DIMS)
+DEFAULT_CONTROL_MODE = CONTROL_MODES[0]
+STATE_DIM = 16  # qpos (9) + TCP pose (7)
 
 
 class RenderingError(RuntimeError):
@@ -57,10 +70,6 @@ def import_maniskill(asset_dir: str | None = None):
     return mani_skill.envs
 
 
-def to_numpy(x) -> np.ndarray:
-    return x.detach().cpu().numpy() if hasattr(x, "detach") else np.asarray(x)
-
-
 def cam2world_from_extrinsic(extrinsic_cv: np.ndarray) -> np.ndarray:
     """OpenCV camera -> world (4, 4) from ManiSkill's world -> OpenCV camera extrinsic (3, 4)."""
     world2cam = np.eye(4)
@@ -79,10 +88,10 @@ def opencv_intrinsics(sapien_K: np.ndarray) -> np.ndarray:
 
 
 class ObsBenchEnv(gym.Env):
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": CONTROL_FPS}
 
     def __init__(self, task: str, cameras=("base_camera",), image_size: int = 128,
-                 control_mode: str = "pd_ee_delta_pose", asset_dir: str | None = None, seed: int | None = None,
+                 control_mode: str = DEFAULT_CONTROL_MODE, asset_dir: str | None = None, seed: int | None = None,
                  episode_length: int | None = None, render_mode: str | None = "rgb_array",
                  perturbation: str | None = None):
         spec = task_spec(task)
@@ -119,7 +128,7 @@ class ObsBenchEnv(gym.Env):
             raise ValueError(f"{task} has no camera {unknown}; its cameras are {available} (--env.cameras).")
         self.unwrapped_ms = self._env.unwrapped
         self.action_space = gym.spaces.Box(-1.0, 1.0, self.unwrapped_ms.single_action_space.shape, np.float32)
-        goal_dim = sum(int(np.prod(obs["extra"][k].shape[1:])) for k in spec.goal_keys)
+        goal_dim = sum(spec.goal.values())
         size = (image_size, image_size)
         spaces = {
             "pixels": gym.spaces.Dict({c: gym.spaces.Box(0, 255, (*size, 3), np.uint8) for c in self.cameras}),
@@ -153,39 +162,26 @@ class ObsBenchEnv(gym.Env):
         frame = {}
         for cam in self.cameras:
             data, param = obs["sensor_data"][cam], obs["sensor_param"][cam]
-            frame[f"observation.images.{cam}"] = to_numpy(data["rgb"][0]).astype(np.uint8)
-            frame[f"observation.depth.{cam}"] = np.clip(to_numpy(data["depth"][0]), 0, None).astype(np.uint16)
-            frame[f"observation.intrinsics.{cam}"] = opencv_intrinsics(to_numpy(param["intrinsic_cv"][0]))
-            frame[f"observation.cam2world.{cam}"] = cam2world_from_extrinsic(to_numpy(param["extrinsic_cv"][0]))
-        state = np.concatenate([to_numpy(obs["agent"]["qpos"][0]), to_numpy(obs["extra"]["tcp_pose"][0])])
-        frame["observation.state"] = state.astype(np.float32)
-        if self.spec_.goal_keys:
-            goal = [to_numpy(obs["extra"][k][0]).reshape(-1) for k in self.spec_.goal_keys]
-            frame["observation.environment_state"] = np.concatenate(goal).astype(np.float32)
+            frame[image_key(cam)] = to_numpy(data["rgb"][0]).astype(np.uint8)
+            frame[depth_key(cam)] = np.clip(to_numpy(data["depth"][0]), 0, None).astype(np.uint16)
+            frame[intrinsics_key(cam)] = opencv_intrinsics(to_numpy(param["intrinsic_cv"][0]))
+            frame[cam2world_key(cam)] = cam2world_from_extrinsic(to_numpy(param["extrinsic_cv"][0]))
+        state = np.concatenate([first(obs["agent"]["qpos"]), first(obs["extra"]["tcp_pose"])])
+        frame[STATE_KEY] = state.astype(np.float32)
+        if self.spec_.goal:
+            frame[ENV_STATE_KEY] = np.concatenate([first(obs["extra"][k]) for k in self.spec_.goal]).astype(np.float32)
         return frame
 
-    to_env_observation = staticmethod(schema.frame_to_env_observation)
+    to_env_observation = staticmethod(frame_to_env_observation)
 
     # ---- gym API -----------------------------------------------------------------------------------------
 
     def _info(self, info: dict) -> dict:
-        success = bool(to_numpy(info["success"]).reshape(-1)[0]) if "success" in info else False
+        success = bool(first(info["success"])[0]) if "success" in info else False
         for name in self.spec_.sub_success:
-            self._milestones[name] = self._milestones.get(name, False) or self._milestone(name, info, success)
+            self._milestones[name] = self._milestones.get(name, False) or self.spec_.milestone(
+                name, self.unwrapped_ms, info, success)
         return {"is_success": success, **{f"sub_success/{k}": v for k, v in self._milestones.items()}}
-
-    def _milestone(self, name: str, info: dict, success: bool) -> bool:
-        env = self.unwrapped_ms
-        if name == "insert":
-            return success
-        if name == "grasp":
-            obj = {"StackCube-v1": "cubeA", "PegInsertionSide-v1": "peg", "PlugCharger-v1": "charger"}[self.spec_.name]
-            return bool(to_numpy(env.agent.is_grasping(getattr(env, obj))).reshape(-1)[0])
-        if name == "align":  # peg head within the hole's cross-section (before or while inserting)
-            head = to_numpy(info["peg_head_pos_at_hole"]).reshape(-1)
-            radius = float(to_numpy(env.box_hole_radii).reshape(-1)[0])
-            return bool(abs(head[1]) <= radius and abs(head[2]) <= radius and head[0] >= -0.05)
-        raise KeyError(name)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
@@ -197,8 +193,8 @@ class ObsBenchEnv(gym.Env):
 
     def step(self, action):
         obs, reward, terminated, truncated, info = self._env.step(np.asarray(action, dtype=np.float32))
-        return (self.to_env_observation(self.schema_frame(obs)), float(to_numpy(reward).reshape(-1)[0]),
-                bool(to_numpy(terminated).reshape(-1)[0]), bool(to_numpy(truncated).reshape(-1)[0]), self._info(info))
+        return (self.to_env_observation(self.schema_frame(obs)), float(first(reward)[0]), bool(first(terminated)[0]),
+                bool(first(truncated)[0]), self._info(info))
 
     def raw_observation(self) -> dict:
         """The current ManiSkill observation (batch of 1), e.g. to record a frame after reset/step."""

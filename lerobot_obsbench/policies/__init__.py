@@ -1,4 +1,5 @@
-"""obs_act and obs_diffusion: importing this package registers both policy types with LeRobot."""
+"""obs_act and obs_diffusion: importing this package registers both policy types (and the `onecycle`
+scheduler) with LeRobot."""
 
 from lerobot_obsbench.policies.obs_act import ObsACTConfig
 from lerobot_obsbench.policies.obs_diffusion import ObsDiffusionConfig

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.policies.act.configuration_act import ACTConfig
 
-from lerobot_obsbench.policies.common import ObservationConfig
+from lerobot_obsbench.policies.observation_config import ObservationConfig
 
 
 @PreTrainedConfig.register_subclass("obs_act")
@@ -26,10 +27,17 @@ class ObsACTConfig(ObservationConfig, ACTConfig):
     # Paper: temporal ensembling with k = 0.01, which queries the policy every step.
     temporal_ensemble_coeff: float | None = 0.01
     n_action_steps: int = 1
-    # Never download torchvision weights implicitly (ACT's default would); see `pretrained`.
+    # Never download torchvision weights implicitly (ACT's default would); weights come from `pretrained`.
     pretrained_backbone_weights: str | None = None
-    # Paper learning rates {1e-5, 5e-5, 1e-4}; the encoder trains at the same rate.
+    # Paper learning rates {1e-5, 5e-5, 1e-4}.
     optimizer_lr: float = 1e-4
-    optimizer_lr_backbone: float = 1e-4
+    # Learning rate of the observation encoder; None: the same as optimizer_lr (the paper's setting).
+    optimizer_lr_backbone: float | None = None
     # Local runs must not require --policy.repo_id.
     push_to_hub: bool = False
+
+    REPLACED_FIELDS: ClassVar[dict[str, str]] = {
+        "vision_backbone": "choose the encoder with --policy.encoder (`obsbench encoders` lists them)",
+        "pretrained_backbone_weights": "load encoder weights with --policy.pretrained",
+        "replace_final_stride_with_dilation": "the plugin's encoders keep their strides",
+    }

@@ -4,13 +4,17 @@ from __future__ import annotations
 
 import einops
 import torch
+import torch.nn.functional as F
 from lerobot.policies.act.modeling_act import ACT, ACTPolicy, ACTTemporalEnsembler
 from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 from torch import Tensor
 
-from lerobot_obsbench.policies.common import EnvObservationMixin, ObservationEncoder
+from lerobot_obsbench.policies.env_passthrough import EnvObservationMixin
 from lerobot_obsbench.policies.obs_act.configuration_obs_act import ObsACTConfig
+from lerobot_obsbench.policies.observation_encoder import ObservationEncoder
+
+ENCODER_PREFIX = "model.observation.encoder."
 
 
 class ObsACT(ACT):
@@ -72,7 +76,7 @@ class ObsACT(ACT):
 
 
 class ObsACTPolicy(EnvObservationMixin, ACTPolicy):
-    """ACT policy (loss, action queue, temporal ensembling from LeRobot) over any observation space."""
+    """ACT policy (action queue, temporal ensembling from LeRobot) over any observation space."""
 
     config_class = ObsACTConfig
     name = "obs_act"
@@ -86,5 +90,25 @@ class ObsACTPolicy(EnvObservationMixin, ACTPolicy):
             self.temporal_ensembler = ACTTemporalEnsembler(config.temporal_ensemble_coeff, config.chunk_size)
         self.reset()
 
+    def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
+        """ACT's training loss: the action reconstruction error over non-padded steps (+ KL weight x KL)."""
+        actions_hat, (mu, log_sigma_x2) = self.model(batch)
+        error = F.l1_loss(batch[ACTION], actions_hat, reduction="none")
+        reconstruction = (error * ~batch["action_is_pad"].unsqueeze(-1)).mean()
+        loss_dict = {"l1_loss": reconstruction.item()}
+        loss = reconstruction
+        if self.config.use_vae:
+            # KL(latent || N(0, I)), summed over the latent dimensions, averaged over the batch
+            kld = (-0.5 * (1 + log_sigma_x2 - mu.pow(2) - log_sigma_x2.exp())).sum(-1).mean()
+            loss_dict["kld_loss"] = kld.item()
+            loss = loss + kld * self.config.kl_weight
+        return loss, loss_dict
+
     def get_optim_params(self) -> list[dict]:
-        return [{"params": [p for p in self.parameters() if p.requires_grad]}]
+        """One parameter group, or two when the encoder has its own learning rate (`optimizer_lr_backbone`)."""
+        params = [(n, p) for n, p in self.named_parameters() if p.requires_grad]
+        if self.config.optimizer_lr_backbone is None:
+            return [{"params": [p for _, p in params]}]
+        return [{"params": [p for n, p in params if not n.startswith(ENCODER_PREFIX)]},
+                {"params": [p for n, p in params if n.startswith(ENCODER_PREFIX)],
+                 "lr": self.config.optimizer_lr_backbone}]

@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
 
-from lerobot_obsbench.policies.common import ObservationConfig
+from lerobot_obsbench.policies.observation_config import ObservationConfig
+from lerobot_obsbench.schema import check_choice
 
 DENOISERS = ("unet", "transformer")
+IMAGE_PIPELINE = ("the observation encoder replaces Diffusion Policy's image pipeline (crop, resize, spatial "
+                  "softmax): choose it with --policy.encoder / --policy.pretrained")
 
 
 @PreTrainedConfig.register_subclass("obs_diffusion")
@@ -20,7 +24,8 @@ class ObsDiffusionConfig(ObservationConfig, DiffusionConfig):
 
     LeRobot's defaults already match the paper (horizon 16, 2 observation steps, 8 action steps, down dims
     512-1024-2048, kernel 5, 8 groups, step embedding 128, FiLM scale, 100 DDPM steps); the optimiser is the
-    paper's AdamW + OneCycle. See `lerobot_obsbench.presets` for the small CPU preset.
+    paper's AdamW + OneCycle (betas (0.9, 0.999): the official code never passes its configured (0.9, 0.95)).
+    See `lerobot_obsbench.presets` for the small CPU preset.
     """
 
     # Paper learning rates {1e-5, 5e-5, 1e-4}.
@@ -38,10 +43,18 @@ class ObsDiffusionConfig(ObservationConfig, DiffusionConfig):
     transformer_attn_dropout: float = 0.3
     transformer_causal: bool = True
 
+    REPLACED_FIELDS: ClassVar[dict[str, str]] = {
+        **{name: IMAGE_PIPELINE for name in (
+            "vision_backbone", "pretrained_backbone_weights", "resize_shape", "crop_ratio", "crop_shape",
+            "crop_is_random", "use_group_norm", "spatial_softmax_num_keypoints",
+            "use_separate_rgb_encoder_per_camera")},
+        "scheduler_name": "the schedule is the paper's OneCycle (--policy.scheduler_pct_start, ...)",
+        "scheduler_warmup_steps": "the schedule is the paper's OneCycle (--policy.scheduler_pct_start, ...)",
+    }
+
     def __post_init__(self):
         super().__post_init__()
-        if self.denoiser not in DENOISERS:
-            raise ValueError(f"denoiser must be one of {DENOISERS}; got {self.denoiser!r}")
+        check_choice("denoiser", self.denoiser, DENOISERS)
         if self.denoiser == "transformer" and self.transformer_dim % self.transformer_heads:
             raise ValueError(f"transformer_dim ({self.transformer_dim}) must be divisible by transformer_heads "
                              f"({self.transformer_heads})")

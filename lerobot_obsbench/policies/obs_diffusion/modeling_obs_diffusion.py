@@ -17,8 +17,9 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.utils.constants import OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 from torch import Tensor, nn
 
-from lerobot_obsbench.policies.common import EnvObservationMixin, ObservationEncoder
+from lerobot_obsbench.policies.env_passthrough import EnvObservationMixin
 from lerobot_obsbench.policies.obs_diffusion.configuration_obs_diffusion import ObsDiffusionConfig
+from lerobot_obsbench.policies.observation_encoder import ObservationEncoder
 
 
 class DiffusionTransformer(nn.Module):
@@ -87,6 +88,8 @@ class ObsDiffusionModel(DiffusionModel):
             prediction_type=config.prediction_type,
         )
         self.num_inference_steps = config.num_inference_steps or config.num_train_timesteps
+        if config.compile_model:
+            self.unet = torch.compile(self.unet, mode=config.compile_mode)
 
     def _prepare_global_conditioning(self, batch: dict[str, Tensor]) -> Tensor:
         batch_size, n_obs_steps = batch[OBS_STATE].shape[:2]

@@ -1,4 +1,7 @@
-"""The OBSBench dataset schema (DESIGN §3) and a validator for LeRobot feature dictionaries.
+"""The plugin's shared vocabulary: observation spaces and their inputs, the dataset schema (DESIGN §3), its
+validator, the point-cloud container, and the env <-> policy passthrough codec.
+
+Every other module takes these names from here; this module imports nothing of the plugin.
 
 One LeRobotDataset stores raw sensor frames; every observation space is derived from them:
 
@@ -16,16 +19,35 @@ One LeRobotDataset stores raw sensor frames; every observation space is derived 
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
 
-OBS_SPACES = ("rgb", "depth", "rgbd", "pointmap", "pointcloud")
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_PREFIX, OBS_STATE
+from torch import Tensor
 
-IMAGE_PREFIX = "observation.images."
-DEPTH_PREFIX = "observation.depth."
-INTRINSICS_PREFIX = "observation.intrinsics."
-CAM2WORLD_PREFIX = "observation.cam2world."
-STATE_KEY = "observation.state"
-ENV_STATE_KEY = "observation.environment_state"
-ACTION_KEY = "action"
+# The plugin's LeRobot policy types (`--policy.type`).
+POLICY_TYPES = ("obs_act", "obs_diffusion")
+
+# ---- observation spaces and their design choices ---------------------------------------------------------
+
+# Spaces fed to image encoders, with their channel counts (rgb 3, metric depth 1, rgb ‖ depth, rgb ‖ xyz).
+IMAGE_CHANNELS = {"rgb": 3, "depth": 1, "rgbd": 4, "pointmap": 6}
+IMAGE_SPACES = tuple(IMAGE_CHANNELS)
+POINT_SPACES = ("pointcloud",)
+OBS_SPACES = (*IMAGE_SPACES, *POINT_SPACES)
+# Per-point features of a point cloud, with their channel counts.
+POINT_FEATURES = {"rgb+xyz": 6, "xyz": 3, "rgb": 3}
+# Frames point coordinates can be expressed in: world (robot base), the first camera, the end effector.
+FRAMES = ("world", "camera", "ee")
+# Where the point tokenizer's FPS + kNN grouping sits: after the backbone (paper default) or before it.
+SAMPLING = ("post", "pre")
+
+STATE_KEY = OBS_STATE
+ENV_STATE_KEY = OBS_ENV_STATE
+ACTION_KEY = ACTION
+IMAGE_PREFIX = OBS_IMAGES + "."
+DEPTH_PREFIX = OBS_PREFIX + "depth."
+INTRINSICS_PREFIX = OBS_PREFIX + "intrinsics."
+CAM2WORLD_PREFIX = OBS_PREFIX + "cam2world."
 SENSOR_PREFIXES = (IMAGE_PREFIX, DEPTH_PREFIX, INTRINSICS_PREFIX, CAM2WORLD_PREFIX)
 EE_POSE_SIZE = 7  # xyz + quaternion (w, x, y, z)
 
@@ -41,6 +63,38 @@ SPACE_SENSORS: dict[str, tuple[str, ...]] = {
 
 class SchemaError(ValueError):
     """A dataset or batch does not provide what the chosen observation space needs."""
+
+
+def check_choice(name: str, value: str, choices) -> str:
+    """`value` if it is one of `choices`, else a ValueError naming the field and the valid values."""
+    if value not in choices:
+        raise ValueError(f"Unknown {name} {value!r}; choose one of {', '.join(choices)}.")
+    return value
+
+
+def check_obs_space(obs_space: str) -> str:
+    if obs_space not in OBS_SPACES:
+        raise SchemaError(f"Unknown obs_space {obs_space!r}; choose one of {', '.join(OBS_SPACES)}.")
+    return obs_space
+
+
+def input_channels(obs_space: str, point_features: str = "rgb+xyz") -> int:
+    """Channels the encoder receives: image channels, or per-point feature size for point clouds."""
+    if check_obs_space(obs_space) in POINT_SPACES:
+        return POINT_FEATURES[check_choice("point_features", point_features, POINT_FEATURES)]
+    return IMAGE_CHANNELS[obs_space]
+
+
+@dataclass
+class PointCloud:
+    """A batch of padded point clouds: what the adapter gives point encoders."""
+
+    xyz: Tensor  # (B, N, 3) metres in the chosen frame
+    features: Tensor  # (B, N, C)
+    mask: Tensor  # (B, N) True for real points
+
+
+# ---- dataset keys ----------------------------------------------------------------------------------------
 
 
 def image_key(cam: str) -> str:
@@ -68,10 +122,8 @@ def is_sensor_key(key: str) -> bool:
     return key.startswith(SENSOR_PREFIXES)
 
 
-def check_obs_space(obs_space: str) -> str:
-    if obs_space not in OBS_SPACES:
-        raise SchemaError(f"Unknown obs_space {obs_space!r}; choose one of {', '.join(OBS_SPACES)}.")
-    return obs_space
+def prefix_of(key: str) -> str:
+    return next(p for p in SENSOR_PREFIXES if key.startswith(p))
 
 
 def cameras_in(features: Mapping[str, object]) -> list[str]:
@@ -79,9 +131,12 @@ def cameras_in(features: Mapping[str, object]) -> list[str]:
     cams: list[str] = []
     for key in features:
         for prefix in SENSOR_PREFIXES:
-            if key.startswith(prefix) and key[len(prefix):] not in cams:
-                cams.append(key[len(prefix):])
+            if key.startswith(prefix) and key[len(prefix) :] not in cams:
+                cams.append(key[len(prefix) :])
     return cams
+
+
+# ---- validation of LeRobot feature dictionaries ----------------------------------------------------------
 
 
 def _shape(ft: object) -> tuple[int, ...]:
@@ -105,8 +160,9 @@ def _expected(prefix: str, shape: tuple[int, ...]) -> tuple[bool, str]:
     return shape == (4, 4), "(4, 4) float32 OpenCV camera -> world transform"
 
 
-def validate_features(features: Mapping[str, object], obs_space: str,
-                      cameras: list[str] | tuple[str, ...] | None = None) -> list[str]:
+def validate_features(
+    features: Mapping[str, object], obs_space: str, cameras: list[str] | tuple[str, ...] | None = None
+) -> list[str]:
     """Check that `features` (a LeRobot dataset `features` dict or policy features) serve `obs_space`.
 
     Returns the cameras used (all cameras that have the needed keys when `cameras` is None). Raises
@@ -117,11 +173,11 @@ def validate_features(features: Mapping[str, object], obs_space: str,
     if cameras is None or len(cameras) == 0:
         cameras = [c for c in cameras_in(features) if all(p + c in features for p in needed)]
         if not cameras:
-            present = sorted(k for k in features if k.startswith("observation."))
+            present = sorted(k for k in features if k.startswith(OBS_PREFIX))
             raise SchemaError(
                 f"obs_space={obs_space!r} needs, for at least one camera <cam>, the keys "
                 f"{', '.join(p + '<cam>' for p in needed)}; the dataset has {present}. Record depth, intrinsics "
-                "and cam2world with the frames (see the schema in lerobot_obsbench/datasets/schema.py), or pick "
+                "and cam2world with the frames (see the schema in lerobot_obsbench/schema.py), or pick "
                 "an observation space the dataset supports."
             )
     problems = []
@@ -139,8 +195,9 @@ def validate_features(features: Mapping[str, object], obs_space: str,
                 problems.append(f"{key!r} has dtype {dtype}, expected uint16 millimetres")
     if problems:
         raise SchemaError(
-            f"Dataset does not fit obs_space={obs_space!r} with cameras {list(cameras)}: " + "; ".join(problems)
-            + ". Fix the recording (schema: lerobot_obsbench/datasets/schema.py) or choose --policy.obs_space / "
+            f"Dataset does not fit obs_space={obs_space!r} with cameras {list(cameras)}: "
+            + "; ".join(problems)
+            + ". Fix the recording (schema: lerobot_obsbench/schema.py) or choose --policy.obs_space / "
             "--policy.cameras accordingly."
         )
     return list(cameras)
@@ -153,26 +210,22 @@ def camera_resolution(features: Mapping[str, object], obs_space: str, cameras: l
         if key in features and prefix_of(key) in SPACE_SENSORS[obs_space]:
             shape = _shape(features[key])
             # policy features store images channel-first (3, H, W); dataset features (H, W, 3)
-            return list(shape[1:]) if shape[0] == 3 and key.startswith(IMAGE_PREFIX) and shape[-1] != 3 else list(shape[:2])
+            channel_first = key.startswith(IMAGE_PREFIX) and shape[0] == 3 and shape[-1] != 3
+            return list(shape[1:]) if channel_first else list(shape[:2])
     return []
 
 
-def prefix_of(key: str) -> str:
-    return next(p for p in SENSOR_PREFIXES if key.startswith(p))
-
-
-# ---- the env <-> policy passthrough (DESIGN §10) ----------------------------------------------------------
+# ---- the env <-> policy passthrough (DESIGN §10) ---------------------------------------------------------
 # Stock lerobot-eval's `preprocess_observation` keeps only `pixels`, `agent_pos`, `environment_state` and the
 # nested `robot_state` dict; the OBSBench env therefore sends depth, intrinsics and cam2world inside
 # `robot_state` under their schema names without the "observation." prefix.
-ENV_PASSTHROUGH_KEY = "observation.robot_state"
+ENV_PASSTHROUGH_KEY = OBS_PREFIX + "robot_state"
 
 
 def frame_to_env_observation(frame: Mapping[str, object]) -> dict:
     """Schema-keyed frame -> the env observation dict lerobot-eval understands."""
     out: dict = {"pixels": {}, "robot_state": {}}
     for key, value in frame.items():
-        name = key.removeprefix("observation.")
         if key.startswith(IMAGE_PREFIX):
             out["pixels"][key.removeprefix(IMAGE_PREFIX)] = value
         elif key == STATE_KEY:
@@ -180,7 +233,7 @@ def frame_to_env_observation(frame: Mapping[str, object]) -> dict:
         elif key == ENV_STATE_KEY:
             out["environment_state"] = value
         else:
-            out["robot_state"][name] = value
+            out["robot_state"][key.removeprefix(OBS_PREFIX)] = value
     return out
 
 
@@ -191,7 +244,7 @@ def env_observation_to_frame(obs: Mapping[str, object]) -> dict:
         frame[STATE_KEY] = obs["agent_pos"]
     if "environment_state" in obs:
         frame[ENV_STATE_KEY] = obs["environment_state"]
-    frame.update({"observation." + name: v for name, v in obs.get("robot_state", {}).items()})
+    frame.update({OBS_PREFIX + name: v for name, v in obs.get("robot_state", {}).items()})
     return frame
 
 
@@ -202,5 +255,5 @@ def unpack_passthrough(batch: dict) -> dict:
     if not isinstance(nested, Mapping):
         return batch
     out = {k: v for k, v in batch.items() if k != ENV_PASSTHROUGH_KEY}
-    out.update({"observation." + name: v for name, v in nested.items()})
+    out.update({OBS_PREFIX + name: v for name, v in nested.items()})
     return out

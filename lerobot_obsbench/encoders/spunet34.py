@@ -1,22 +1,11 @@
-"""Sparse convolutional U-Net backbone (`spunet34`): PonderV2 / Pointcept's SpUNet layout on spconv.
-
-Layout (the paper's SpUNet-34): a 5x5x5 submanifold stem to 32 channels; 4 encoder stages, each a stride-2
-sparse conv then (2, 3, 4, 6) residual blocks of two 3x3x3 submanifold convs (32-64-128-256 channels); 4
-decoder stages, each an inverse sparse conv, concatenation with the encoder skip and (2, 2, 2, 2) residual
-blocks (256-128-96-96 channels). Every conv is followed by BatchNorm (eps 1e-3, momentum 0.01) and ReLU.
-Module names follow PonderV2's checkpoint keys (`conv_input`, `down.N`, `enc.N.blockM`, `up.N`, `dec.N.blockM`).
-
-Points are voxelized at `voxel_size` in the policy's frame (one voxel per point after the adapter's voxel
-sampling; duplicates share a voxel) and the per-voxel output features are scattered back to the points.
+"""`spunet34`: the sparse U-Net of `sparse_unet.py` with the point tokenizer, and PonderV2's checkpoints.
 
 PonderV2 trains one set of norms per dataset ("PDNorm": `bn.bns.K.*` per condition, plus an adaptive
 `bn.modulation` from a learned per-dataset context `embedding_table`). For one chosen condition that norm is an
 ordinary BatchNorm followed by a constant per-channel scale and shift, which `ponderv2_to_spunet` folds into the
 BatchNorm's affine parameters — an exact conversion, so the encoder itself keeps plain BatchNorm.
 
-spconv 2.3.8's CPU wheel asks `torch.cuda.current_stream()` in its backward pass, which fails on a CUDA-built
-torch without a GPU; `import_spconv` makes that lookup return stream 0 when CUDA is unavailable (DESIGN §5).
-On a GPU machine install `spconv-cu126` instead; the code is the same.
+Only building the encoder imports spconv (`sparse_unet.py`); registering it and converting checkpoints do not.
 """
 
 from __future__ import annotations
@@ -24,38 +13,13 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from lerobot_obsbench.encoders.point_tokenizer import PointTokenEncoder, describe_point_tokens
 from lerobot_obsbench.encoders.pretrained import load_matching, read_state_dict
 from lerobot_obsbench.encoders.registry import register_encoder
-from lerobot_obsbench.spaces import input_channels
+from lerobot_obsbench.schema import input_channels
 
-ENCODER_CHANNELS, ENCODER_BLOCKS = (32, 64, 128, 256), (2, 3, 4, 6)
-DECODER_CHANNELS, DECODER_BLOCKS = (256, 128, 96, 96), (2, 2, 2, 2)
-STEM_CHANNELS = 32
 PONDERV2_CONDITIONS = ("ScanNet", "S3DIS", "Structured3D")
-SPCONV_HELP = ("spunet34 needs spconv: `pip install spconv==2.3.8` (CPU wheel) or `pip install spconv-cu126` "
-               "(CUDA 12.x GPUs)")
-_PATCHED = False
-
-
-def _current_stream() -> int:
-    return torch.cuda.current_stream().cuda_stream if torch.cuda.is_available() else 0
-
-
-def import_spconv():
-    """`spconv.pytorch`, with its CUDA-stream lookup made safe on CPU-only machines."""
-    global _PATCHED
-    try:
-        import spconv.pytorch as spconv
-    except ImportError as err:
-        raise ImportError(SPCONV_HELP) from err
-    if not _PATCHED:
-        from spconv.pytorch import cppcore, hash as sp_hash, ops, utils
-
-        for module in (cppcore, ops, sp_hash, utils):
-            if hasattr(module, "get_current_stream"):
-                module.get_current_stream = _current_stream
-        _PATCHED = True
-    return spconv
+OUT_CHANNELS = 96  # the last decoder stage's width
 
 
 def ponderv2_to_spunet(state: dict[str, Tensor], condition: str = "ScanNet") -> dict[str, Tensor]:
@@ -98,12 +62,11 @@ def load_ponderv2(backbone, pretrained: str, condition: str = "ScanNet") -> dict
 
 
 @register_encoder("spunet34", ("pointcloud",), "sparse-conv U-Net, PonderV2 layout (paper, 39.2M); needs spconv",
-                  pretrained="PonderV2 (module.backbone.*)")
-def build_spunet(obs_space: str, output: str, dim: int = 512, point_features: str = "rgb+xyz",
-                 sampling: str = "post", num_tokens: int = 2048, knn: int = 16, voxel_size: float = 0.005,
-                 pretrained: str | None = None, **_: object):
-    from lerobot_obsbench.encoders.pointnet import PointTokenEncoder
-    from lerobot_obsbench.encoders.sparse_unet import SpUNet
+                  describe_point_tokens(OUT_CHANNELS), pretrained="PonderV2 (module.backbone.*)")
+def build_spunet(obs_space: str, output: str, dim: int, point_features: str = "rgb+xyz", sampling: str = "post",
+                 num_tokens: int = 2048, knn: int = 16, voxel_size: float = 0.005,
+                 pretrained: str | None = None) -> PointTokenEncoder:
+    from lerobot_obsbench.encoders.sparse_unet import SpUNet  # spconv is needed from here on only
 
     channels = input_channels(obs_space, point_features)
     backbone = SpUNet(channels, voxel_size=voxel_size)

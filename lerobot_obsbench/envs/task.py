@@ -1,0 +1,116 @@
+"""What OBSBench knows about a ManiSkill3 task, in one place per task, and the fixed seed lists.
+
+Each task is a `Task` subclass in its own module of `lerobot_obsbench.envs.tasks` (discovered on import, so
+adding a task is adding one module), documented in ManiSkill's style: description, randomizations, success
+conditions, plus the scripted expert's strategy and its measured success rate. A task names its episode
+budget, the goal observation it gives the policy, the object the gripper must hold (for the `grasp`
+milestone), its sub-success milestones and its expert.
+
+Seeds: demonstrations use seeds from DEMO_SEED_START upwards; evaluation uses `eval_seeds` (and checkpoint
+selection VALIDATION_SEEDS). The three ranges never overlap, so no evaluation episode was seen in training.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+
+EVAL_SEED_START = 0  # evaluation: seeds 0 .. 9_999 (the paper uses 400 episodes per task)
+VALIDATION_SEED_START = 10_000  # checkpoint selection: 10_000 .. 19_999
+DEMO_SEED_START = 100_000  # demonstrations: 100_000 and up
+
+
+def eval_seeds(n: int) -> list[int]:
+    """The documented held-out evaluation seeds: 0, 1, ..., n-1."""
+    if not 0 < n <= VALIDATION_SEED_START - EVAL_SEED_START:
+        raise ValueError(f"episodes must be in 1..{VALIDATION_SEED_START}; got {n}")
+    return list(range(EVAL_SEED_START, EVAL_SEED_START + n))
+
+
+class TaskError(ValueError):
+    """Unknown task, or a task whose assets are missing."""
+
+
+def to_numpy(x) -> np.ndarray:
+    return x.detach().cpu().numpy() if hasattr(x, "detach") else np.asarray(x)
+
+
+def first(value) -> np.ndarray:
+    """A single env's value (ManiSkill returns batches of one) as a flat NumPy array."""
+    return to_numpy(value).reshape(-1)
+
+
+class Task:
+    """One OBSBench task on ManiSkill3. Subclasses set the class attributes and document the task."""
+
+    # ManiSkill's task id, e.g. "PickCube-v1".
+    name: ClassVar[str]
+    # Steps per episode (ManiSkill's own budget for the task).
+    max_steps: ClassVar[int]
+    # One line for dataset task strings and listings.
+    description: ClassVar[str]
+    # `extra` observation keys -> sizes that form observation.environment_state (the goal given to the policy).
+    goal: ClassVar[dict[str, int]] = {}
+    # Attribute of the ManiSkill env holding the object to grasp (the `grasp` milestone); None: no grasp.
+    grasped: ClassVar[str | None] = None
+    # Per-episode milestones reported next to success, each achieved at some step of the episode.
+    sub_success: ClassVar[tuple[str, ...]] = ()
+    # Scripted expert class (`envs.experts.WaypointExpert` subclass); None: demos must come from `import-h5`.
+    expert: ClassVar[type | None] = None
+    # ManiSkill asset download id when the task needs downloaded assets.
+    asset_group: ClassVar[str | None] = None
+
+    def milestone(self, name: str, ms_env, info: dict, success: bool) -> bool:
+        """Whether milestone `name` holds at this step (`ms_env`: the unwrapped ManiSkill env)."""
+        if name == "grasp":
+            return bool(first(ms_env.agent.is_grasping(getattr(ms_env, self.grasped)))[0])
+        raise KeyError(f"{self.name} has no rule for milestone {name!r}")
+
+    def make_expert(self, env):
+        if self.expert is None:
+            raise NotImplementedError(
+                f"No scripted expert for {self.name} yet (experts: {', '.join(n for n, t in TASKS.items() if t.expert)}). "
+                "Convert official ManiSkill demonstrations instead: obsbench import-h5 --h5 FILE.h5 --out DIR."
+            )
+        return self.expert(env)
+
+
+TASKS: dict[str, Task] = {}
+
+
+def register_task(cls: type[Task]) -> type[Task]:
+    """Class decorator adding a task to TASKS (a name registered twice is an error)."""
+    if cls.name in TASKS:
+        raise ValueError(f"task {cls.name!r} is registered twice ({type(TASKS[cls.name]).__module__}, {cls.__module__})")
+    if cls.sub_success and "grasp" in cls.sub_success and cls.grasped is None:
+        raise ValueError(f"task {cls.name!r} reports a grasp milestone but names no grasped object")
+    TASKS[cls.name] = cls()
+    return cls
+
+
+def task_spec(name: str) -> Task:
+    if name not in TASKS:
+        raise TaskError(f"Unknown task {name!r}. OBSBench tasks: {', '.join(TASKS)}.")
+    return TASKS[name]
+
+
+def missing_assets(spec: Task) -> list[str]:
+    """ManiSkill data sources the task needs that are not on disk (checked without ManiSkill's stdin prompt)."""
+    if spec.asset_group is None:
+        return []
+    from mani_skill.utils import assets
+
+    ids = (assets.expand_data_group_into_individual_data_source_ids(spec.asset_group)
+           if spec.asset_group in assets.DATA_GROUPS else [spec.asset_group])
+    return [i for i in ids if not assets.is_data_source_downloaded(i)]
+
+
+def asset_help(spec: Task, asset_dir: str | None) -> str:
+    where = asset_dir or "~/.maniskill"
+    return (
+        f"{spec.name} needs ManiSkill assets '{spec.asset_group}', which are not in {where}/data. This machine "
+        f"cannot download them; on one with internet run\n  MS_ASSET_DIR={where} python -m "
+        f"mani_skill.utils.download_asset {spec.asset_group}\nthen copy that directory here and pass "
+        f"--env.asset_dir={where} (or set MS_ASSET_DIR)."
+    )

@@ -1,0 +1,41 @@
+"""PickCube-v1.
+
+**Task Description:** grasp the red cube and move it to a goal position in the air (shown as a green sphere,
+which the cameras do not see); the goal position is given to the policy as observation.environment_state.
+
+**Randomizations:** the cube's xy position in [-0.1, 0.1]^2 on the table and its rotation about z; the goal's
+xy in [-0.1, 0.1]^2 and its height 0..0.3 m above the cube's.
+
+**Success Conditions:** the cube within 2.5 cm of the goal while the robot is static.
+
+**Expert:** top-down grasp aligned with the cube's faces, carry to the goal, hold still. 20/20 over seeds
+100000.. (mean 26.6 steps; `obsbench demos --task PickCube-v1 --episodes 20`).
+"""
+
+from __future__ import annotations
+
+from lerobot_obsbench.envs.experts import CLOSED, OPEN, Phase, WaypointExpert, above
+from lerobot_obsbench.envs.task import Task, first, register_task
+
+
+class PickCubeExpert(WaypointExpert):
+    def plan(self):
+        cube = lambda s: s.pose_of(s.env.cube)[0]  # noqa: E731
+        yaw = self.aligned(self.env.cube)
+        goal = lambda s: first(s.env.goal_site.pose.p)  # noqa: E731
+        return [
+            Phase("pre-grasp", lambda s: above(cube(s), 0.05), OPEN, yaw),
+            Phase("descend", cube, OPEN, yaw, tol=0.005),
+            Phase("grasp", cube, CLOSED, yaw, tol=1.0, min_steps=4, max_steps=4),
+            Phase("to goal", goal, CLOSED, tol=0.005, max_steps=60),
+            Phase("hold", goal, CLOSED, tol=1.0, min_steps=30, max_steps=30),
+        ]
+
+
+@register_task
+class PickCube(Task):
+    name = "PickCube-v1"
+    max_steps = 50
+    description = "pick up the red cube and move it to the goal"
+    goal = {"goal_pos": 3}
+    expert = PickCubeExpert
