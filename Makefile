@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install main test test-fast bench clean
+.PHONY: install main lint test test-fast bench clean
 
 $(STAMP): pyproject.toml scripts/setup_system.sh
 	bash scripts/setup_system.sh
@@ -23,8 +23,15 @@ main: $(STAMP)
 	$(BIN)/obsbench report outputs/bench/quick/results.jsonl --title "OBSBench quick (CPU smoke test)" \
 		--json outputs/bench/quick/summary.json
 
-# README test command: the whole suite, fast tests first, then the slow end-to-end ones.
-test: $(STAMP)
+# Code checks (configured in pyproject.toml): ruff lint + format, and the import-layer contracts.
+CODE := lerobot_obsbench lerobot_policy_obsbench tests benchmarks scripts
+lint: $(STAMP)
+	$(BIN)/ruff check $(CODE)
+	$(BIN)/ruff format --check $(CODE)
+	$(BIN)/lint-imports --no-logo
+
+# README test command: the code checks, then the whole suite, fast tests first, then the slow end-to-end ones.
+test: lint
 	$(BIN)/python -m pytest -m "not slow" -q
 	$(BIN)/python -m pytest -m slow -q
 

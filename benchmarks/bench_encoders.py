@@ -23,8 +23,14 @@ from benchmarks.common import load_synthetic, timed, write
 from lerobot_obsbench.encoders import encoder_info, make_encoder
 from lerobot_obsbench.spaces import ObservationAdapter
 
-PAIRS = [("resnet18", "rgb"), ("resnet50", "rgb"), ("vit_b", "rgb"), ("multivit_b", "rgbd"),
-         ("pointnet", "pointcloud"), ("spunet34", "pointcloud")]
+PAIRS = [
+    ("resnet18", "rgb"),
+    ("resnet50", "rgb"),
+    ("vit_b", "rgb"),
+    ("multivit_b", "rgbd"),
+    ("pointnet", "pointcloud"),
+    ("spunet34", "pointcloud"),
+]
 
 
 def peak_mb(device: str) -> float:
@@ -52,8 +58,12 @@ def measure(name: str, space: str, batch: int, size: int, device: str, repeats: 
         torch.cuda.reset_peak_memory_stats()
     before = 0.0 if device.startswith("cuda") else peak_mb(device)
     timing = timed(step, repeats=repeats, warmup=1)
-    return {**timing, "params_M": round(params / 1e6, 3), "peak_memory_MB": round(peak_mb(device) - before, 1),
-            "samples_per_s": round(batch * 1000 / timing["median_ms"], 2)}
+    return {
+        **timing,
+        "params_M": round(params / 1e6, 3),
+        "peak_memory_MB": round(peak_mb(device) - before, 1),
+        "samples_per_s": round(batch * 1000 / timing["median_ms"], 2),
+    }
 
 
 def main(argv=None) -> Path:
@@ -69,16 +79,23 @@ def main(argv=None) -> Path:
     results = {}
     for name, space in PAIRS:
         with ProcessPoolExecutor(1, mp_context=get_context("spawn")) as pool:
-            entry = pool.submit(measure, name, space, args.batch, args.size, args.device, args.repeats,
-                                args.num_tokens).result()
+            entry = pool.submit(
+                measure, name, space, args.batch, args.size, args.device, args.repeats, args.num_tokens
+            ).result()
         results[f"{name}/{space}"] = entry
-        print(f"{name:10s} {space:10s} {entry['params_M']:7.2f}M  fwd+bwd {entry['median_ms']:9.1f} ms / batch "
-              f"{args.batch}  peak +{entry['peak_memory_MB']:8.1f} MB", flush=True)
+        print(
+            f"{name:10s} {space:10s} {entry['params_M']:7.2f}M  fwd+bwd {entry['median_ms']:9.1f} ms / batch "
+            f"{args.batch}  peak +{entry['peak_memory_MB']:8.1f} MB",
+            flush=True,
+        )
     base = results["resnet18/rgb"]["median_ms"]
     for entry in results.values():
         entry["vs_resnet18"] = round(entry["median_ms"] / base, 2)
-    return write(f"encoders_{args.device.split(':')[0]}", {"batch": args.batch, "size": args.size,
-                                                          "num_tokens": args.num_tokens, "results": results}, args.out)
+    return write(
+        f"encoders_{args.device.split(':')[0]}",
+        {"batch": args.batch, "size": args.size, "num_tokens": args.num_tokens, "results": results},
+        args.out,
+    )
 
 
 if __name__ == "__main__":

@@ -16,8 +16,8 @@ import numpy as np
 
 from benchmarks.common import write
 from lerobot_obsbench import schema
-from lerobot_obsbench.envs.task import TASKS
 from lerobot_obsbench.envs.maniskill import ObsBenchEnv, import_maniskill
+from lerobot_obsbench.envs.task import TASKS
 
 
 def steps_per_second(env, steps: int, action_space) -> float:
@@ -67,8 +67,10 @@ def main() -> None:
         rates["plugin_rgb_depth"].append(steps_per_second(plugin, args.steps, space))
     steps = {k: round(float(np.median(v)), 1) for k, v in rates.items()}
     overhead = steps["raw_rgb_depth"] / steps["plugin_rgb_depth"] - 1
-    print(f"{args.task} steps/s: raw state {steps['raw_state']}, raw rgb+depth {steps['raw_rgb_depth']}, plugin "
-          f"{steps['plugin_rgb_depth']} -> wrapper overhead {overhead:.1%}")
+    print(
+        f"{args.task} steps/s: raw state {steps['raw_state']}, raw rgb+depth {steps['raw_rgb_depth']}, plugin "
+        f"{steps['plugin_rgb_depth']} -> wrapper overhead {overhead:.1%}"
+    )
     raw_state.close()
     raw_rgbd.close()
     plugin.close()
@@ -91,14 +93,29 @@ def main() -> None:
             return bool(info["success"][0])
 
         raw_per_min, _ = expert_episodes_per_minute(raw, expert_cls, args.episodes, raw_step)
-        demos[task] = {"plugin_episodes_per_min": round(per_min, 1), "raw_episodes_per_min": round(raw_per_min, 1),
-                       "expert_success_in_run": success}
-        print(f"{task}: {per_min:.1f} expert episodes/min with the plugin, {raw_per_min:.1f} raw ManiSkill "
-              f"(expert success {success:.0%} of {args.episodes})")
+        demos[task] = {
+            "plugin_episodes_per_min": round(per_min, 1),
+            "raw_episodes_per_min": round(raw_per_min, 1),
+            "expert_success_in_run": success,
+        }
+        print(
+            f"{task}: {per_min:.1f} expert episodes/min with the plugin, {raw_per_min:.1f} raw ManiSkill "
+            f"(expert success {success:.0%} of {args.episodes})"
+        )
         ours.close()
         raw.close()
-    write("env", {"task": args.task, "image_size": args.size, "steps_per_s": steps,
-                  "wrapper_overhead": round(overhead, 3), "target_overhead": 0.2, "demos": demos}, args.out)
+    write(
+        "env",
+        {
+            "task": args.task,
+            "image_size": args.size,
+            "steps_per_s": steps,
+            "wrapper_overhead": round(overhead, 3),
+            "target_overhead": 0.2,
+            "demos": demos,
+        },
+        args.out,
+    )
 
 
 if __name__ == "__main__":

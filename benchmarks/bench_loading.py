@@ -10,9 +10,9 @@ import argparse
 import tempfile
 from pathlib import Path
 
-import lerobot_obsbench  # noqa: F401  (applies the fix)
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+import lerobot_obsbench  # noqa: F401  (applies the fix)
 from benchmarks.common import load_synthetic, timed, write
 from lerobot_obsbench import patches
 
@@ -27,22 +27,31 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         root = synthetic.write_dataset(Path(tmp) / "ds", episodes=2, frames=150, size=args.size, seed=0)
         act = {"action": [i / 10 for i in range(args.chunk)]}
-        diffusion = {"action": [i / 10 for i in range(-1, 15)],
-                     **{k: [-0.1, 0.0] for k in ("observation.images.base_camera", "observation.depth.base_camera",
-                                                  "observation.state")}}
+        diffusion = {
+            "action": [i / 10 for i in range(-1, 15)],
+            **{
+                k: [-0.1, 0.0]
+                for k in ("observation.images.base_camera", "observation.depth.base_camera", "observation.state")
+            },
+        }
         results = {}
         for name, deltas in (("act_chunk", act), ("diffusion_history", diffusion)):
             fast = LeRobotDataset("local/bench", root=root, delta_timestamps=deltas)
             with patches.stock_loading():
                 stock = LeRobotDataset("local/bench", root=root, delta_timestamps=deltas)
                 indices = iter(range(7, 10_000, 13))
-                stock_t = timed(lambda: stock[next(indices) % len(stock)], repeats=3)
+                stock_t = timed(lambda ds=stock, i=indices: ds[next(i) % len(ds)], repeats=3)
             indices = iter(range(7, 10_000, 13))
-            fast_t = timed(lambda: fast[next(indices) % len(fast)], repeats=30)
-            results[name] = {"stock": stock_t, "plugin": fast_t,
-                             "speedup": round(stock_t["median_ms"] / fast_t["median_ms"], 1)}
-            print(f"{name}: stock {stock_t['median_ms']:.1f} ms, plugin {fast_t['median_ms']:.2f} ms per sample "
-                  f"({results[name]['speedup']}x)")
+            fast_t = timed(lambda ds=fast, i=indices: ds[next(i) % len(ds)], repeats=30)
+            results[name] = {
+                "stock": stock_t,
+                "plugin": fast_t,
+                "speedup": round(stock_t["median_ms"] / fast_t["median_ms"], 1),
+            }
+            print(
+                f"{name}: stock {stock_t['median_ms']:.1f} ms, plugin {fast_t['median_ms']:.2f} ms per sample "
+                f"({results[name]['speedup']}x)"
+            )
     write("loading", {"image_size": args.size, "chunk": args.chunk, "target_ms": 10, "results": results}, args.out)
 
 

@@ -49,7 +49,9 @@ def sensor_batch(frames: dict[str, np.ndarray], device) -> dict[str, torch.Tenso
         f"observation.images.{CAM}": torch.tensor(frames["rgb"]).permute(0, 3, 1, 2).float().div(255).to(device),
         f"observation.depth.{CAM}": torch.tensor(frames["depth"].astype(np.int64)).to(device),
         f"observation.intrinsics.{CAM}": torch.tensor(frames["K"], dtype=torch.float32).expand(n, 3, 3).to(device),
-        f"observation.cam2world.{CAM}": torch.tensor(frames["cam2world"], dtype=torch.float32).expand(n, 4, 4).to(device),
+        f"observation.cam2world.{CAM}": torch.tensor(frames["cam2world"], dtype=torch.float32)
+        .expand(n, 4, 4)
+        .to(device),
     }
 
 
@@ -120,7 +122,9 @@ def main() -> None:
 
     def run_reference():
         for i in range(args.reference_frames):
-            ref_points.append(numpy_reference(frames["rgb"][i], frames["depth"][i], frames["K"], frames["cam2world"])[2])
+            ref_points.append(
+                numpy_reference(frames["rgb"][i], frames["depth"][i], frames["K"], frames["cam2world"])[2]
+            )
 
     reference = timed(run_reference, repeats=2, warmup=0)
 
@@ -134,17 +138,27 @@ def main() -> None:
     libraries_ms = libraries["median_ms"] / args.batch
     assert ref_points[0] == int(points_per_frame[0]), "both pipelines must keep the same voxels"
     result = {
-        "image_size": args.size, "batch": args.batch, "device": args.device, "voxel_size": 0.005, "fps_seeds": 2048,
-        "knn": 16, "points_after_voxel_mean": round(float(points_per_frame.mean()), 1),
-        "plugin_ms_per_frame": round(plugin_ms, 3), "numpy_reference_ms_per_frame": round(reference_ms, 3),
-        "speedup": round(reference_ms / plugin_ms, 1), "target_speedup": 10, "plugin_batch": plugin,
+        "image_size": args.size,
+        "batch": args.batch,
+        "device": args.device,
+        "voxel_size": 0.005,
+        "fps_seeds": 2048,
+        "knn": 16,
+        "points_after_voxel_mean": round(float(points_per_frame.mean()), 1),
+        "plugin_ms_per_frame": round(plugin_ms, 3),
+        "numpy_reference_ms_per_frame": round(reference_ms, 3),
+        "speedup": round(reference_ms / plugin_ms, 1),
+        "target_speedup": 10,
+        "plugin_batch": plugin,
         "reference_frames": reference,
         "numpy_fpsample_scipy_ms_per_frame": round(libraries_ms, 3),
         "speedup_vs_numpy_fpsample_scipy": round(libraries_ms / plugin_ms, 2),
     }
-    print(f"{args.size}² frames, ~{result['points_after_voxel_mean']:.0f} voxels each: plugin {plugin_ms:.2f} ms/frame "
-          f"(batch {args.batch}, {args.device}) vs NumPy reference {reference_ms:.1f} ms/frame -> {result['speedup']}x; "
-          f"NumPy + fpsample + scipy {libraries_ms:.2f} ms/frame")
+    print(
+        f"{args.size}² frames, ~{result['points_after_voxel_mean']:.0f} voxels each: plugin {plugin_ms:.2f} ms/frame "
+        f"(batch {args.batch}, {args.device}) vs NumPy reference {reference_ms:.1f} ms/frame -> {result['speedup']}x; "
+        f"NumPy + fpsample + scipy {libraries_ms:.2f} ms/frame"
+    )
     write(f"preprocess_{args.device}", result, args.out)
 
 

@@ -26,8 +26,13 @@ from lerobot_obsbench.policies.obs_diffusion.modeling_obs_diffusion import ObsDi
 from lerobot_obsbench.presets import PRESETS, preset_overrides
 
 CAM = "base_camera"
-PAIRS = [("rgb", "resnet18"), ("depth", "resnet18"), ("rgbd", "resnet18"), ("pointmap", "resnet18"),
-         ("pointcloud", "pointnet")]
+PAIRS = [
+    ("rgb", "resnet18"),
+    ("depth", "resnet18"),
+    ("rgbd", "resnet18"),
+    ("pointmap", "resnet18"),
+    ("pointcloud", "pointnet"),
+]
 
 
 def features(size: int) -> tuple[dict, dict]:
@@ -97,8 +102,13 @@ def main() -> None:
             stock_extra["crop_shape"] = None
         else:
             stock_extra["n_action_steps"] = 1
-        stock_cfg = stock_cls(device=args.device, input_features={k: v for k, v in inputs.items() if "images" in k or k.endswith("state")},
-                              output_features=outputs, **common, **stock_extra)
+        stock_cfg = stock_cls(
+            device=args.device,
+            input_features={k: v for k, v in inputs.items() if "images" in k or k.endswith("state")},
+            output_features=outputs,
+            **common,
+            **stock_extra,
+        )
         stock = stock_policy(stock_cfg).to(device)
         horizon = stock_cfg.chunk_size if kind == "act" else stock_cfg.horizon
         n_obs = None if kind == "act" else stock_cfg.n_obs_steps
@@ -106,26 +116,52 @@ def main() -> None:
         if kind == "diffusion":
             batch["observation.images"] = batch[f"observation.images.{CAM}"].unsqueeze(2)
         base = step_time(stock, batch, args.repeats)
-        rows.append({"policy": f"stock {kind}", "obs_space": "rgb", "encoder": "resnet18 (LeRobot)",
-                     "params_M": round(sum(p.numel() for p in stock.parameters()) / 1e6, 2), **base, "ratio": 1.0})
+        rows.append(
+            {
+                "policy": f"stock {kind}",
+                "obs_space": "rgb",
+                "encoder": "resnet18 (LeRobot)",
+                "params_M": round(sum(p.numel() for p in stock.parameters()) / 1e6, 2),
+                **base,
+                "ratio": 1.0,
+            }
+        )
         print(f"stock {kind}-resnet18: {base['median_ms']:.0f} ms")
         pairs = PAIRS + ([("pointcloud", "pointnet@2048")] if kind == "act" else [])
         for space, encoder in pairs:
-            extra = dict(preset_overrides(args.preset, f"obs_{kind}", space), encoder=encoder.split("@")[0],
-                         workspace=list(WORKSPACE))
+            extra = dict(
+                preset_overrides(args.preset, f"obs_{kind}", space),
+                encoder=encoder.split("@")[0],
+                workspace=list(WORKSPACE),
+            )
             if "@" in encoder:
                 extra["num_tokens"] = int(encoder.split("@")[1])
-            cfg = ours_cls(device=args.device, obs_space=space, input_features=dict(inputs), output_features=outputs,
-                           **{k: v for k, v in extra.items()})
+            cfg = ours_cls(
+                device=args.device,
+                obs_space=space,
+                input_features=dict(inputs),
+                output_features=outputs,
+                **{k: v for k, v in extra.items()},
+            )
             policy = ours_policy(cfg).to(device)
             t = step_time(policy, batch, args.repeats)
             ratio = round(t["median_ms"] / base["median_ms"], 2)
-            rows.append({"policy": f"obs_{kind}", "obs_space": space, "encoder": encoder,
-                         "params_M": round(sum(p.numel() for p in policy.parameters()) / 1e6, 2), **t, "ratio": ratio})
+            rows.append(
+                {
+                    "policy": f"obs_{kind}",
+                    "obs_space": space,
+                    "encoder": encoder,
+                    "params_M": round(sum(p.numel() for p in policy.parameters()) / 1e6, 2),
+                    **t,
+                    "ratio": ratio,
+                }
+            )
             print(f"obs_{kind} {space:10s} {encoder:14s}: {t['median_ms']:.0f} ms ({ratio}x stock)")
-    write(f"train_step_{args.device}_{args.preset}", {"batch": args.batch, "image_size": args.size,
-                                                        "preset": args.preset, "target_ratio": 2.0, "rows": rows},
-          args.out)
+    write(
+        f"train_step_{args.device}_{args.preset}",
+        {"batch": args.batch, "image_size": args.size, "preset": args.preset, "target_ratio": 2.0, "rows": rows},
+        args.out,
+    )
 
 
 if __name__ == "__main__":

@@ -1,7 +1,8 @@
 """lerobot-obsbench: OBSBench as a LeRobot plugin.
 
 Importing the package registers the `obs_act` and `obs_diffusion` policy types, the `obsbench` env type and
-the encoder registry with LeRobot, and applies the plugin's narrow LeRobot data-loading fixes (see `lerobot_obsbench.patches`).
+the encoder registry with LeRobot, and applies the plugin's narrow LeRobot data-loading fixes (see
+`lerobot_obsbench.patches`).
 """
 
 from lerobot_obsbench import patches

@@ -50,10 +50,13 @@ def cmd_preset(args: argparse.Namespace) -> int:
 def cmd_demos(args: argparse.Namespace) -> int:
     from lerobot_obsbench.datasets.recording import record_demos
 
-    info = record_demos(args.task, args.episodes, args.out, image_size=args.image_size, cameras=args.cameras,
-                        seed_start=args.seed_start)
-    print(f"{args.out}: {len(info['seeds'])} episodes of {args.task}; expert success rate "
-          f"{info['expert_success_rate']:.0%} over {info['attempts']} attempts (seeds {info['seeds'][0]}..)")
+    info = record_demos(
+        args.task, args.episodes, args.out, image_size=args.image_size, cameras=args.cameras, seed_start=args.seed_start
+    )
+    print(
+        f"{args.out}: {len(info['seeds'])} episodes of {args.task}; expert success rate "
+        f"{info['expert_success_rate']:.0%} over {info['attempts']} attempts (seeds {info['seeds'][0]}..)"
+    )
     return 0
 
 
@@ -71,8 +74,10 @@ def cmd_doctor(args: argparse.Namespace) -> int:
         env.reset(seed=0)
         frame = env.render()
         env.close()
-        print(f"ok      rendering works (PickCube-v1 made, reset and rendered {frame.shape} in "
-              f"{time.time() - start:.1f} s)")
+        print(
+            f"ok      rendering works (PickCube-v1 made, reset and rendered {frame.shape} in "
+            f"{time.time() - start:.1f} s)"
+        )
     except RenderingError as err:
         print(f"FAILED  rendering: {err}")
         return 1
@@ -89,8 +94,14 @@ def cmd_doctor(args: argparse.Namespace) -> int:
 def cmd_import(args: argparse.Namespace) -> int:
     from lerobot_obsbench.datasets.maniskill_import import import_trajectories
 
-    info = import_trajectories(args.h5, args.out, image_size=args.image_size, cameras=args.cameras,
-                               max_episodes=args.max_episodes, only_success=not args.all)
+    info = import_trajectories(
+        args.h5,
+        args.out,
+        image_size=args.image_size,
+        cameras=args.cameras,
+        max_episodes=args.max_episodes,
+        only_success=not args.all,
+    )
     print(f"{args.out}: {len(info['episode_ids'])} {info['task']} episodes imported from {args.h5}")
     return 0
 
@@ -98,15 +109,26 @@ def cmd_import(args: argparse.Namespace) -> int:
 def cmd_eval(args: argparse.Namespace) -> int:
     from lerobot_obsbench.envs.evaluate import evaluate, write_result
 
-    result = evaluate(args.policy_path, args.task, args.episodes, image_size=args.image_size,
-                      control_mode=args.control_mode, episode_length=args.episode_length, device=args.device,
-                      video_dir=args.videos, asset_dir=args.asset_dir, perturbation=args.perturbation)
+    result = evaluate(
+        args.policy_path,
+        args.task,
+        args.episodes,
+        image_size=args.image_size,
+        control_mode=args.control_mode,
+        episode_length=args.episode_length,
+        device=args.device,
+        video_dir=args.videos,
+        asset_dir=args.asset_dir,
+        perturbation=args.perturbation,
+    )
     write_result(result, args.out)
     lo, hi = result["ci95"]
     sub = "".join(f", {k} {v:.0%}" for k, v in result["sub_success"].items())
-    print(f"{result['task']}: success {result['successes']}/{result['episodes']} = {result['success_rate']:.1%} "
-          f"(95% CI {lo:.1%}-{hi:.1%}){sub}; mean episode length {result['episode_length_mean']}"
-          + (f"; written to {args.out}" if args.out else ""))
+    print(
+        f"{result['task']}: success {result['successes']}/{result['episodes']} = {result['success_rate']:.1%} "
+        f"(95% CI {lo:.1%}-{hi:.1%}){sub}; mean episode length {result['episode_length_mean']}"
+        + (f"; written to {args.out}" if args.out else "")
+    )
     return 0
 
 
@@ -117,8 +139,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     grid = load_grid(args.grid)
     out = args.out or Path("outputs") / "bench" / grid.name
     loader_workers = args.loader_workers if args.loader_workers is not None else (0 if args.device == "cpu" else 4)
-    failures = run_grid(grid, out, workers=args.workers, device=args.device, dry_run=args.dry_run,
-                        loader_workers=loader_workers)
+    failures = run_grid(
+        grid, out, workers=args.workers, device=args.device, dry_run=args.dry_run, loader_workers=loader_workers
+    )
     if failures:
         print(f"{failures} run(s) failed (see the messages above); rerun the same command to retry them.")
         return 1
@@ -130,8 +153,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 def cmd_report(args: argparse.Namespace) -> int:
     import json
 
-    from lerobot_obsbench.bench.report import (build_report, markdown_table, read_published, summary_json,
-                                               write_report)
+    from lerobot_obsbench.bench.report import build_report, markdown_table, read_published, summary_json, write_report
     from lerobot_obsbench.bench.results import read_results
 
     if args.results is None and args.table is None:
@@ -161,8 +183,9 @@ def build_parser() -> argparse.ArgumentParser:
     from lerobot_obsbench.envs.task import DEMO_SEED_START
     from lerobot_obsbench.presets import PRESETS
 
-    parser = argparse.ArgumentParser(prog="obsbench", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="obsbench", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("encoders", help="list registered encoders and the observation spaces they accept")
@@ -176,19 +199,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cameras", nargs="*", default=[], help="camera names (default: every camera found)")
     p.set_defaults(func=cmd_validate)
 
-    p = sub.add_parser("demos", help="record successful scripted-expert demonstrations into a LeRobotDataset "
-                                      "(resumable: rerun the same command after an interruption)")
+    p = sub.add_parser(
+        "demos",
+        help="record successful scripted-expert demonstrations into a LeRobotDataset "
+        "(resumable: rerun the same command after an interruption)",
+    )
     p.add_argument("--task", required=True)
     p.add_argument("--episodes", type=int, required=True)
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--image-size", type=int, default=128)
     p.add_argument("--cameras", nargs="+", default=["base_camera"])
-    p.add_argument("--seed-start", type=int, default=DEMO_SEED_START, help=f"first demonstration seed (>= "
-                   f"{DEMO_SEED_START}; lower seeds are reserved for evaluation and checkpoint selection)")
+    p.add_argument(
+        "--seed-start",
+        type=int,
+        default=DEMO_SEED_START,
+        help=f"first demonstration seed (>= "
+        f"{DEMO_SEED_START}; lower seeds are reserved for evaluation and checkpoint selection)",
+    )
     p.set_defaults(func=cmd_demos)
 
-    p = sub.add_parser("import-h5", help="convert official ManiSkill trajectories (.h5 + .json) into the schema by "
-                                          "replaying their env states")
+    p = sub.add_parser(
+        "import-h5",
+        help="convert official ManiSkill trajectories (.h5 + .json) into the schema by replaying their env states",
+    )
     p.add_argument("--h5", type=Path, required=True)
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--image-size", type=int, default=128)
@@ -201,14 +234,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--policy.path", dest="policy_path", required=True, help="pretrained_model directory")
     p.add_argument("--env.task", dest="task", required=True)
     p.add_argument("--episodes", type=int, default=50)
-    p.add_argument("--env.image_size", dest="image_size", type=int, default=None,
-                   help="default: the resolution the policy was trained on")
+    p.add_argument(
+        "--env.image_size",
+        dest="image_size",
+        type=int,
+        default=None,
+        help="default: the resolution the policy was trained on",
+    )
     p.add_argument("--env.control_mode", dest="control_mode", default=DEFAULT_CONTROL_MODE, choices=CONTROL_MODES)
     p.add_argument("--env.episode_length", dest="episode_length", type=int, default=None)
     p.add_argument("--env.asset_dir", dest="asset_dir", default=None)
-    p.add_argument("--env.perturbation", dest="perturbation", default=None,
-                   help="zero-shot perturbation kind:value, e.g. camera_yaw:10, light:0.03, background:1,0.2,0.2, "
-                        "noise:16")
+    p.add_argument(
+        "--env.perturbation",
+        dest="perturbation",
+        default=None,
+        help="zero-shot perturbation kind:value, e.g. camera_yaw:10, light:0.03, background:1,0.2,0.2, noise:16",
+    )
     p.add_argument("--policy.device", dest="device", default="cpu")
     p.add_argument("--videos", type=Path, default=None, help="write one mp4 per episode here")
     p.add_argument("--out", type=Path, default=None, help="write the JSON result here")
@@ -218,22 +259,34 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--asset-dir", default=None, help="ManiSkill asset directory (MS_ASSET_DIR)")
     p.set_defaults(func=cmd_doctor)
 
-    p = sub.add_parser("run", help="run a benchmark grid (YAML file or preset name: quick, paper-main, ...): "
-                                    "demos -> lerobot-train -> eval -> results.jsonl; resumable")
+    p = sub.add_parser(
+        "run",
+        help="run a benchmark grid (YAML file or preset name: quick, paper-main, ...): "
+        "demos -> lerobot-train -> eval -> results.jsonl; resumable",
+    )
     p.add_argument("grid", help=f"grid YAML file, or the name of a preset grid: {', '.join(preset_grids())}")
     p.add_argument("--out", type=Path, default=None, help="output directory (default outputs/bench/<grid name>)")
     p.add_argument("--workers", type=int, default=1, help="runs executed in parallel local processes")
     p.add_argument("--device", default="cpu", help="torch device for training and evaluation (cpu, cuda)")
-    p.add_argument("--loader-workers", type=int, default=None,
-                   help="DataLoader workers per training run (default: 0 on cpu, 4 on a GPU)")
+    p.add_argument(
+        "--loader-workers",
+        type=int,
+        default=None,
+        help="DataLoader workers per training run (default: 0 on cpu, 4 on a GPU)",
+    )
     p.add_argument("--dry-run", action="store_true", help="print the runs still to do and a rough cost; run nothing")
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser("report", help="paper-style tables (Markdown + HTML) and plots from results.jsonl and/or "
-                                       "a published table")
+    p = sub.add_parser(
+        "report", help="paper-style tables (Markdown + HTML) and plots from results.jsonl and/or a published table"
+    )
     p.add_argument("results", type=Path, nargs="?", default=None, help="results.jsonl written by `obsbench run`")
-    p.add_argument("--table", type=Path, default=None, help="published table CSV: rows = tasks, columns = "
-                   "methods, values = success rates in [0, 1]")
+    p.add_argument(
+        "--table",
+        type=Path,
+        default=None,
+        help="published table CSV: rows = tasks, columns = methods, values = success rates in [0, 1]",
+    )
     p.add_argument("--out", type=Path, default=None, help="report directory (default: next to the results)")
     p.add_argument("--json", type=Path, default=None, help="write mean_sr and mean_rank per method here")
     p.add_argument("--title", default="OBSBench report")

@@ -15,6 +15,7 @@ import torch
 from scipy.spatial import cKDTree
 from torch import Tensor
 
+
 def unproject_depth(depth: Tensor, K: Tensor) -> Tensor:
     """Camera-frame points (B, H, W, 3) of a metric depth map (B, H, W) with intrinsics K (B, 3, 3)."""
     _, h, w = depth.shape
@@ -53,9 +54,15 @@ def quaternion_to_matrix(quat: Tensor) -> Tensor:
     w, x, y, z = torch.unbind(quat / quat.norm(dim=-1, keepdim=True), dim=-1)
     return torch.stack(
         [
-            1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
-            2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
-            2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y),
+            1 - 2 * (y * y + z * z),
+            2 * (x * y - z * w),
+            2 * (x * z + y * w),
+            2 * (x * y + z * w),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z - x * w),
+            2 * (x * z - y * w),
+            2 * (y * z + x * w),
+            1 - 2 * (x * x + y * y),
         ],
         dim=-1,
     ).reshape(quat.shape[:-1] + (3, 3))
@@ -111,8 +118,9 @@ def voxel_grid(points: Tensor, mask: Tensor, voxel_size: float) -> tuple[Tensor,
     return cells, key.masked_fill(~mask, -1)
 
 
-def voxel_sample(points: Tensor, mask: Tensor, voxel_size: float, random: bool,
-                 generator: torch.Generator | None = None) -> Tensor:
+def voxel_sample(
+    points: Tensor, mask: Tensor, voxel_size: float, random: bool, generator: torch.Generator | None = None
+) -> Tensor:
     """Keep exactly one point per occupied voxel of edge `voxel_size` (per batch element).
 
     Returns a keep-mask (B, N). `random=True` (training) picks a uniformly random point of each voxel;

@@ -80,7 +80,9 @@ def query_hf_dataset_by_column(self, query_indices: dict[str, list[int]]) -> dic
     for key, q_idx in query_indices.items():
         if key in self.meta.video_keys:
             continue
-        relative = q_idx if self._absolute_to_relative_idx is None else [self._absolute_to_relative_idx[i] for i in q_idx]
+        relative = (
+            q_idx if self._absolute_to_relative_idx is None else [self._absolute_to_relative_idx[i] for i in q_idx]
+        )
         result[key] = torch.stack(self.hf_dataset.select_columns([key])[relative][key])
     return result
 
@@ -112,8 +114,12 @@ def apply(lerobot_version: str | None = None) -> bool:
     """Patch LeRobot if it is the version the patches were written for; returns whether it patched."""
     version = lerobot_version or metadata.version("lerobot")
     if version != LEROBOT_VERSION:
-        logger.warning("lerobot_obsbench: LeRobot %s is installed, the dataset-loading fixes were written for %s; "
-                       "leaving LeRobot unpatched (loading depth datasets may be slow).", version, LEROBOT_VERSION)
+        logger.warning(
+            "lerobot_obsbench: LeRobot %s is installed, the dataset-loading fixes were written for %s; "
+            "leaving LeRobot unpatched (loading depth datasets may be slow).",
+            version,
+            LEROBOT_VERSION,
+        )
         return False
     _set(query_hf_dataset_by_column, load_hf_dataset_fast)
     lerobot_dataset.decode_video_frames = decode_video_frames_with_fallback

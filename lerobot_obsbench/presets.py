@@ -18,20 +18,40 @@ from lerobot_obsbench.schema import IMAGE_SPACES, POINT_SPACES, POLICY_TYPES, ch
 PRESETS: dict[str, dict[str, dict[str, object]]] = {
     "paper": {"obs_act": {}, "obs_diffusion": {}},
     "cpu": {
-        "obs_act": {"dim_model": 128, "n_heads": 4, "dim_feedforward": 256, "n_encoder_layers": 2,
-                    "n_vae_encoder_layers": 2, "chunk_size": 20},
+        "obs_act": {
+            "dim_model": 128,
+            "n_heads": 4,
+            "dim_feedforward": 256,
+            "n_encoder_layers": 2,
+            "n_vae_encoder_layers": 2,
+            "chunk_size": 20,
+        },
         "obs_diffusion": {"down_dims": [64, 128, 256], "diffusion_step_embed_dim": 64, "num_inference_steps": 20},
     },
     "tiny": {
-        "obs_act": {"dim_model": 32, "n_heads": 2, "dim_feedforward": 32, "n_encoder_layers": 1,
-                    "n_vae_encoder_layers": 1, "chunk_size": 5},
-        "obs_diffusion": {"down_dims": [16, 32], "diffusion_step_embed_dim": 16, "horizon": 8, "n_action_steps": 4,
-                          "num_inference_steps": 4},
+        "obs_act": {
+            "dim_model": 32,
+            "n_heads": 2,
+            "dim_feedforward": 32,
+            "n_encoder_layers": 1,
+            "n_vae_encoder_layers": 1,
+            "chunk_size": 5,
+        },
+        "obs_diffusion": {
+            "down_dims": [16, 32],
+            "diffusion_step_embed_dim": 16,
+            "horizon": 8,
+            "n_action_steps": 4,
+            "num_inference_steps": 4,
+        },
     },
 }
 # Point tokenizer sizes per preset (point-cloud spaces only).
-POINT_OVERRIDES: dict[str, dict[str, object]] = {"paper": {}, "cpu": {"num_tokens": 128},
-                                                 "tiny": {"num_tokens": 16, "knn": 4}}
+POINT_OVERRIDES: dict[str, dict[str, object]] = {
+    "paper": {},
+    "cpu": {"num_tokens": 128},
+    "tiny": {"num_tokens": 16, "knn": 4},
+}
 # Image encoder per preset (image spaces only); None: the registry's default (the paper's ResNet-50).
 IMAGE_ENCODER: dict[str, str | None] = {"paper": None, "cpu": "resnet18", "tiny": "resnet18"}
 

@@ -188,7 +188,8 @@ class ObservationAdapter(nn.Module):
 def _require(batch: dict, key: str) -> Tensor:
     if key not in batch:
         raise SchemaError(
-            f"Missing {key!r} in the observation batch (it has {sorted(k for k in batch if k.startswith('observation'))}). "
+            f"Missing {key!r} in the observation batch (it has "
+            f"{sorted(k for k in batch if k.startswith('observation'))}). "
             "The chosen obs_space/cameras need it: record it in the dataset / env observation, or change "
             "--policy.obs_space / --policy.cameras."
         )

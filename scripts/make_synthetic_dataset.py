@@ -125,8 +125,17 @@ def episode(rng, frames: int):
         ee = ee + 0.3 * error + rng.normal(0, 0.002, 3)
 
 
-def write_dataset(out: Path, episodes: int, frames: int, size: int, seed: int, camera: str = "base_camera",
-                  use_video: bool = True, with_goal: bool = True, repo_id: str = "local/obsbench_synthetic") -> Path:
+def write_dataset(
+    out: Path,
+    episodes: int,
+    frames: int,
+    size: int,
+    seed: int,
+    camera: str = "base_camera",
+    use_video: bool = True,
+    with_goal: bool = True,
+    repo_id: str = "local/obsbench_synthetic",
+) -> Path:
     """Write the dataset; `with_goal=False` leaves out the cube position (environment_state), so that a policy
     can only find the cube in its observations."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
@@ -134,8 +143,14 @@ def write_dataset(out: Path, episodes: int, frames: int, size: int, seed: int, c
     rng = np.random.default_rng(seed)
     K = intrinsics(size)
     cam2world = look_at(eye=(0.45, 0.0, 0.55), target=(0.0, 0.0, 0.0))
-    ds = LeRobotDataset.create(repo_id=repo_id, fps=10, features=features(size, camera, use_video, with_goal),
-                               root=out, robot_type="synthetic", use_videos=use_video)
+    ds = LeRobotDataset.create(
+        repo_id=repo_id,
+        fps=10,
+        features=features(size, camera, use_video, with_goal),
+        root=out,
+        robot_type="synthetic",
+        use_videos=use_video,
+    )
     for _ in range(episodes):
         for cube, ee, yaw, action in episode(rng, frames):
             boxes = [(cube, CUBE_HALF, CUBE_RGB), (ee, GRIPPER_HALF, GRIPPER_RGB)]
@@ -168,8 +183,15 @@ def main() -> None:
     parser.add_argument("--images", action="store_true", help="store RGB as PNG images instead of video")
     parser.add_argument("--no-goal", action="store_true", help="leave out observation.environment_state")
     args = parser.parse_args()
-    write_dataset(args.out, args.episodes, args.frames, args.size, args.seed, use_video=not args.images,
-                  with_goal=not args.no_goal)
+    write_dataset(
+        args.out,
+        args.episodes,
+        args.frames,
+        args.size,
+        args.seed,
+        use_video=not args.images,
+        with_goal=not args.no_goal,
+    )
     print(f"wrote {args.episodes} episodes x {args.frames} frames to {args.out}")
 
 

@@ -8,7 +8,6 @@ from pathlib import Path
 import pytest
 
 import lerobot_obsbench  # noqa: F401  (registers obs_act / obs_diffusion, as LeRobot's plugin discovery does)
-
 from scripts import make_synthetic_dataset as synthetic
 
 
@@ -26,5 +25,6 @@ def tiny_dataset(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def image_dataset(tmp_path_factory) -> Path:
     """Same scene with RGB stored as PNG images instead of video."""
-    return synthetic.write_dataset(tmp_path_factory.mktemp("ds") / "img", episodes=2, frames=8, size=32, seed=1,
-                                   use_video=False)
+    return synthetic.write_dataset(
+        tmp_path_factory.mktemp("ds") / "img", episodes=2, frames=8, size=32, seed=1, use_video=False
+    )

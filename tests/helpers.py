@@ -32,8 +32,12 @@ def frame_batch(synthetic, batch_size: int = 2, size: int = 32, seed: int = 0, c
     for _ in range(batch_size):
         cube = np.array([rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1), synthetic.CUBE_HALF])
         ee = np.array([rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1), 0.2])
-        rgb, depth, _ = synthetic.render(K, cam2world, size, [(cube, synthetic.CUBE_HALF, synthetic.CUBE_RGB),
-                                                               (ee, synthetic.GRIPPER_HALF, synthetic.GRIPPER_RGB)])
+        rgb, depth, _ = synthetic.render(
+            K,
+            cam2world,
+            size,
+            [(cube, synthetic.CUBE_HALF, synthetic.CUBE_RGB), (ee, synthetic.GRIPPER_HALF, synthetic.GRIPPER_RGB)],
+        )
         out["rgb"].append(torch.tensor(rgb).permute(2, 0, 1).float() / 255)
         out["depth"].append(torch.tensor(depth.astype(np.int64)))
         out["state"].append(torch.tensor(np.concatenate([np.zeros(8), ee, synthetic.quat_z(0.7)]), dtype=torch.float32))

@@ -29,9 +29,11 @@ def test_competition_ranking_1224():
 
 
 def test_mean_sr_and_mean_rank_by_hand():
-    table = {"t1": {"A": 0.80, "B": 0.60, "C": 0.60},
-             "t2": {"A": 0.10, "B": 0.30, "C": 0.20},
-             "t3": {"A": 0.00, "B": 0.00, "C": 0.50}}
+    table = {
+        "t1": {"A": 0.80, "B": 0.60, "C": 0.60},
+        "t2": {"A": 0.10, "B": 0.30, "C": 0.20},
+        "t3": {"A": 0.00, "B": 0.00, "C": 0.50},
+    }
     summary = summarize(table)
     # A: ranks 1, 3, 2 ; B: 2, 1, 2 ; C: 2, 2, 1
     assert summary["A"]["mean_rank"] == pytest.approx(2.0)
@@ -48,8 +50,11 @@ def test_published_table_csv(tmp_path):
     assert table == {"PickCube": {"ResNet50": 0.10, "PointNet": 0.30}, "StackCube": {"ResNet50": 0.05}}
     summary = summarize(table)
     assert summary["PointNet"]["tasks"] == 1 and summary["ResNet50"]["mean_sr"] == pytest.approx(0.075)
-    for body, words in (("task,A\nt1,abc\n", ["table.csv:2", "'abc'"]), ("task,A\nt1,45\n", [":2", "[0, 1]"]),
-                        ("task,A,B\nt1,0.1\n", [":2", "2 cells"])):
+    for body, words in (
+        ("task,A\nt1,abc\n", ["table.csv:2", "'abc'"]),
+        ("task,A\nt1,45\n", [":2", "[0, 1]"]),
+        ("task,A,B\nt1,0.1\n", [":2", "2 cells"]),
+    ):
         path.write_text(body)
         with pytest.raises(ReportError) as err:
             read_published(path)
@@ -58,12 +63,28 @@ def test_published_table_csv(tmp_path):
 
 
 def record(run_id, task, space, successes, episodes=10, seed=0, demos=10, lr=1e-4, evaluations=None):
-    config = {"task": task, "obs_space": space, "encoder": "e", "policy": "obs_act", "seed": seed, "lr": lr,
-              "demos": demos, "preset": "cpu", "steps": 5, "epochs": None, "image_size": 64,
-              "policy_overrides": {}}
+    config = {
+        "task": task,
+        "obs_space": space,
+        "encoder": "e",
+        "policy": "obs_act",
+        "seed": seed,
+        "lr": lr,
+        "demos": demos,
+        "preset": "cpu",
+        "steps": 5,
+        "epochs": None,
+        "image_size": 64,
+        "policy_overrides": {},
+    }
     base = {"successes": successes, "episodes": episodes, "success_rate": successes / episodes}
-    return {"run_id": run_id, "config": config, "method": f"obs_act/{space}/e", "task": task,
-            "evaluations": {"none": base, **(evaluations or {})}}
+    return {
+        "run_id": run_id,
+        "config": config,
+        "method": f"obs_act/{space}/e",
+        "task": task,
+        "evaluations": {"none": base, **(evaluations or {})},
+    }
 
 
 def test_results_store_reports_corrupted_lines_and_never_merges_lines(tmp_path):
@@ -83,8 +104,11 @@ def test_results_store_reports_corrupted_lines_and_never_merges_lines(tmp_path):
 
 
 def test_seeds_pool_into_one_wilson_interval():
-    records = [record("a", "T", "rgb", 3, seed=0), record("b", "T", "rgb", 5, seed=1),
-               record("c", "T", "pointcloud", 9, seed=0)]
+    records = [
+        record("a", "T", "rgb", 3, seed=0),
+        record("b", "T", "rgb", 5, seed=1),
+        record("c", "T", "pointcloud", 9, seed=0),
+    ]
     cells = pooled_cells(records)
     assert cells["T"]["obs_act/rgb/e"] == Cell(8, 20)
     assert cells["T"]["obs_act/rgb/e"].ci95 == wilson_interval(8, 20)
@@ -99,9 +123,14 @@ def test_varying_learning_rates_become_separate_columns():
 
 def test_report_files(tmp_path):
     light = {"light:0.03": {"successes": 1, "episodes": 10}}
-    records = [record("a", "T1", "rgb", 2, evaluations=light), record("b", "T1", "pointcloud", 8, evaluations=light),
-               record("c", "T2", "rgb", 6), record("d", "T2", "pointcloud", 6),
-               record("e", "T1", "rgb", 1, demos=5), record("f", "T1", "pointcloud", 4, demos=5)]
+    records = [
+        record("a", "T1", "rgb", 2, evaluations=light),
+        record("b", "T1", "pointcloud", 8, evaluations=light),
+        record("c", "T2", "rgb", 6),
+        record("d", "T2", "pointcloud", 6),
+        record("e", "T1", "rgb", 1, demos=5),
+        record("f", "T1", "pointcloud", 4, demos=5),
+    ]
     published = tmp_path / "paper.csv"
     published.write_text("task,ResNet50\nT1,0.25\nT9,0.5\n")
     report = build_report(records, read_published(published), published_name="paper")
@@ -124,9 +153,14 @@ def test_report_files(tmp_path):
 def test_report_cli_with_published_table_only(tmp_path, capsys):
     table = tmp_path / "t.csv"
     table.write_text("task,A,B\nt1,0.5,0.7\nt2,0.3,0.1\n")
-    assert main(["report", "--table", str(table), "--out", str(tmp_path / "r"), "--json", str(tmp_path / "s.json")]) == 0
+    assert (
+        main(["report", "--table", str(table), "--out", str(tmp_path / "r"), "--json", str(tmp_path / "s.json")]) == 0
+    )
     summary = json.loads((tmp_path / "s.json").read_text())["published"]
-    assert summary == {"A": {"mean_sr": 0.4, "mean_rank": 1.5, "tasks": 2}, "B": {"mean_sr": 0.4, "mean_rank": 1.5, "tasks": 2}}
+    assert summary == {
+        "A": {"mean_sr": 0.4, "mean_rank": 1.5, "tasks": 2},
+        "B": {"mean_sr": 0.4, "mean_rank": 1.5, "tasks": 2},
+    }
     assert "Mean S.R." in capsys.readouterr().out
     table.write_text("task,A\nt1,x\n")
     assert main(["report", "--table", str(table)]) == 2

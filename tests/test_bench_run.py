@@ -38,8 +38,15 @@ policy_overrides: {workspace: [-1, 1, -1, 1, 0.005, 1]}
 
 
 def obsbench(*args, **kwargs):
-    return subprocess.Popen([str(BIN / "obsbench"), *args], env=ENV, stdin=subprocess.DEVNULL,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, **kwargs)
+    return subprocess.Popen(
+        [str(BIN / "obsbench"), *args],
+        env=ENV,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        **kwargs,
+    )
 
 
 def test_grid_runs_resumes_after_a_kill_and_reports(tmp_path):
@@ -80,10 +87,18 @@ def test_grid_runs_resumes_after_a_kill_and_reports(tmp_path):
     # no leftovers: one run directory per record
     assert {p.name for p in (out / "runs").iterdir()} == expected
 
-    report = subprocess.run([str(BIN / "obsbench"), "report", str(results), "--json", str(tmp_path / "s.json")],
-                            env=ENV, capture_output=True, text=True)
+    report = subprocess.run(
+        [str(BIN / "obsbench"), "report", str(results), "--json", str(tmp_path / "s.json")],
+        env=ENV,
+        capture_output=True,
+        text=True,
+    )
     assert report.returncode == 0, report.stderr
     summary = json.loads((tmp_path / "s.json").read_text())["results"]
-    assert set(summary) == {"obs_act/rgb/resnet18", "obs_act/pointcloud/pointnet", "obs_diffusion/rgb/resnet18",
-                            "obs_diffusion/pointcloud/pointnet"}
+    assert set(summary) == {
+        "obs_act/rgb/resnet18",
+        "obs_act/pointcloud/pointnet",
+        "obs_diffusion/rgb/resnet18",
+        "obs_diffusion/pointcloud/pointnet",
+    }
     assert (out / "report" / "report.html").is_file() and (out / "report" / "generalization_light.png").is_file()

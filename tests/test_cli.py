@@ -54,7 +54,11 @@ def test_presets_set_only_what_the_space_uses():
     assert preset_overrides("cpu", "obs_act", "pointcloud")["num_tokens"] == 128
     assert "encoder" not in preset_overrides("cpu", "obs_act", "pointcloud")
     assert [preset_encoder(p, s) for p in ("paper", "cpu") for s in ("rgbd", "pointcloud")] == [
-        "resnet50", "pointnet", "resnet18", "pointnet"]
+        "resnet50",
+        "pointnet",
+        "resnet18",
+        "pointnet",
+    ]
     from lerobot_obsbench.policies import ObsACTConfig, ObsDiffusionConfig
 
     for preset in ("paper", "cpu", "tiny"):  # every preset builds for every space

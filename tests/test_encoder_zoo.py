@@ -4,7 +4,6 @@ every (encoder x accepted space x policy) pair training a few steps."""
 
 from __future__ import annotations
 
-
 import pytest
 import torch
 import torchvision
@@ -39,22 +38,28 @@ def test_parameter_counts_match_table_1():
     # parameters, which is what `pointnet` has; Table 1's 0.14M is not that module (see README).
     pointnet = make_encoder("pointnet", "pointcloud", output="global")
     assert sum(p.numel() for p in pointnet.backbone.parameters()) == 6 * 64 + 64 * 64 * 2 + 64 * 128 + 128 * 512 + 2 * (
-        64 * 3 + 128 + 512)
+        64 * 3 + 128 + 512
+    )
 
 
 def timm_vit(**kwargs):
     from timm.models.vision_transformer import VisionTransformer
 
-    return VisionTransformer(patch_size=16, num_classes=0, embed_dim=WIDTH, depth=12, num_heads=12,
-                             global_pool="token", **kwargs).eval()
+    return VisionTransformer(
+        patch_size=16, num_classes=0, embed_dim=WIDTH, depth=12, num_heads=12, global_pool="token", **kwargs
+    ).eval()
 
 
 def test_vc1_mae_checkpoint_loads_into_vit_b(tmp_path):
     torch.manual_seed(0)
     source = timm_vit(img_size=224, dynamic_img_size=True)
     state = dict(source.state_dict())
-    decoder = {"mask_token": torch.zeros(1, 1, 512), "decoder_embed.weight": torch.zeros(512, WIDTH),
-               "decoder_pos_embed": torch.zeros(1, 197, 512), "decoder_pred.weight": torch.zeros(768, 512)}
+    decoder = {
+        "mask_token": torch.zeros(1, 1, 512),
+        "decoder_embed.weight": torch.zeros(512, WIDTH),
+        "decoder_pos_embed": torch.zeros(1, 197, 512),
+        "decoder_pred.weight": torch.zeros(768, 512),
+    }
     ckpt = tmp_path / "vc1_vitb.pth"
     torch.save({"model": {**state, **decoder}}, ckpt)
 
@@ -92,8 +97,10 @@ def test_multimae_checkpoint_loads_into_multivit_b(tmp_path):
     torch.manual_seed(0)
     source = make_encoder("multivit_b", "rgbd", output="global").eval()
     backbone = {k: v for k, v in source.state_dict().items() if not k.startswith("head.")}
-    others = {"input_adapters.semseg.class_emb.weight": torch.zeros(134, 64),
-              "output_adapters.rgb.decoder.0.weight": torch.zeros(4, 4)}
+    others = {
+        "input_adapters.semseg.class_emb.weight": torch.zeros(134, 64),
+        "output_adapters.rgb.decoder.0.weight": torch.zeros(4, 4),
+    }
     ckpt = tmp_path / "multimae-b.pth"
     torch.save({"model": {**backbone, **others}}, ckpt)
     torch.manual_seed(1)
@@ -104,8 +111,12 @@ def test_multimae_checkpoint_loads_into_multivit_b(tmp_path):
     with torch.no_grad():
         torch.testing.assert_close(loaded(x), source(x))
     # the layout is MultiMAE's: adapters per modality, one global token appended after the patch tokens
-    assert {"input_adapters.rgb.proj.weight", "input_adapters.depth.pos_emb", "global_tokens",
-            "encoder.11.mlp.fc2.weight"} <= set(backbone)
+    assert {
+        "input_adapters.rgb.proj.weight",
+        "input_adapters.depth.pos_emb",
+        "global_tokens",
+        "encoder.11.mlp.fc2.weight",
+    } <= set(backbone)
     assert backbone["input_adapters.depth.proj.weight"].shape == (WIDTH, 1, 16, 16)
 
 
@@ -142,7 +153,7 @@ def small_cloud(batch: int = 2, points: int = 400, seed: int = 0):
     g = torch.Generator().manual_seed(seed)
     xyz = torch.rand(batch, points, 3, generator=g) * 0.15
     mask = torch.ones(batch, points, dtype=torch.bool)
-    mask[1, points // 2:] = False
+    mask[1, points // 2 :] = False
     return PointCloud(xyz, torch.cat([torch.rand(batch, points, 3, generator=g) * 2 - 1, xyz], dim=-1), mask)
 
 
@@ -181,7 +192,9 @@ def test_ponderv2_checkpoint_loads_with_its_conditional_norms(tmp_path):
         norm, _, field = key.rpartition(".")
         if norm in norms:
             for k in range(3):  # condition 0 (ScanNet) holds the source's statistics, the others garbage
-                state[f"module.backbone.{norm}.bns.{k}.{field}"] = value if k == 0 else torch.randn_like(value.float()).to(value.dtype)
+                state[f"module.backbone.{norm}.bns.{k}.{field}"] = (
+                    value if k == 0 else torch.randn_like(value.float()).to(value.dtype)
+                )
         else:
             state[f"module.backbone.{key}"] = value
     for norm in norms:
@@ -200,6 +213,7 @@ def test_ponderv2_checkpoint_loads_with_its_conditional_norms(tmp_path):
         def hook(module, args, out):
             shift, scale = modulations[norm](nn.functional.silu(table[0])).chunk(2)
             return out * (1 + scale) + shift
+
         return hook
 
     for norm in norms:
@@ -237,12 +251,15 @@ def test_zoo_encoders_train(tiny_dataset, policy_type, encoder, obs_space):
     assert encoder in available_encoders(obs_space)
 
 
-@pytest.mark.parametrize("fields, words", [
-    ({"obs_space": "rgb", "sampling": "pre"}, ["sampling='pre'", "point-cloud design choice", "obs_space='rgb'"]),
-    ({"obs_space": "rgbd", "point_features": "xyz"}, ["point_features='xyz'", "point-cloud design choice"]),
-    ({"obs_space": "depth", "frame": "ee"}, ["frame='ee'", "pointcloud or pointmap"]),
-    ({"obs_space": "pointcloud", "pretrained": "w.pth"}, ["'pointnet' has no pretrained weights", "spunet34"]),
-])
+@pytest.mark.parametrize(
+    "fields, words",
+    [
+        ({"obs_space": "rgb", "sampling": "pre"}, ["sampling='pre'", "point-cloud design choice", "obs_space='rgb'"]),
+        ({"obs_space": "rgbd", "point_features": "xyz"}, ["point_features='xyz'", "point-cloud design choice"]),
+        ({"obs_space": "depth", "frame": "ee"}, ["frame='ee'", "pointcloud or pointmap"]),
+        ({"obs_space": "pointcloud", "pretrained": "w.pth"}, ["'pointnet' has no pretrained weights", "spunet34"]),
+    ],
+)
 def test_ablation_values_that_do_not_fit_fail_at_config_time(fields, words):
     from lerobot_obsbench.policies import ObsACTConfig, ObsDiffusionConfig
 
@@ -258,12 +275,19 @@ def test_ablation_values_that_do_not_fit_fail_at_config_time(fields, words):
 def test_ablations_as_config_values_train(tiny_dataset):
     """The paper's design ablations are plain config values: pre-sampling, xyz / rgb point features, the
     camera and end-effector frames, pointmap and depth with ViT, and DP's transformer denoiser."""
-    cases = [("obs_act", "pointcloud", {"sampling": "pre"}), ("obs_act", "pointcloud", {"point_features": "xyz"}),
-             ("obs_act", "pointcloud", {"point_features": "rgb", "frame": "camera"}),
-             ("obs_diffusion", "pointcloud", {"frame": "ee", "sampling": "pre"}),
-             ("obs_act", "pointmap", {"encoder": "vit_b"}), ("obs_diffusion", "depth", {"encoder": "vit_b"}),
-             ("obs_diffusion", "rgb", {"encoder": "resnet18", "denoiser": "transformer", "transformer_layers": 2,
-                                       "transformer_dim": 32})]
+    cases = [
+        ("obs_act", "pointcloud", {"sampling": "pre"}),
+        ("obs_act", "pointcloud", {"point_features": "xyz"}),
+        ("obs_act", "pointcloud", {"point_features": "rgb", "frame": "camera"}),
+        ("obs_diffusion", "pointcloud", {"frame": "ee", "sampling": "pre"}),
+        ("obs_act", "pointmap", {"encoder": "vit_b"}),
+        ("obs_diffusion", "depth", {"encoder": "vit_b"}),
+        (
+            "obs_diffusion",
+            "rgb",
+            {"encoder": "resnet18", "denoiser": "transformer", "transformer_layers": 2, "transformer_dim": 32},
+        ),
+    ]
     for policy_type, space, fields in cases:
         policy, pre, _, dataset = training_setup(policy_type, space, tiny_dataset, **fields)
         loss, _ = policy.forward(first_batch(dataset, pre, batch_size=2))

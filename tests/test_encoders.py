@@ -30,7 +30,9 @@ def test_registry_declares_spaces_and_refuses_wrong_pairs():
     assert "pointnet" not in available_encoders("rgb") and "multivit_b" not in available_encoders("rgb")
     assert set(encoder_info("resnet18").spaces) == {"rgb", "depth", "rgbd", "pointmap"}
     assert set(encoder_info("vit_b").spaces) == {"rgb", "depth", "rgbd", "pointmap"}
-    with pytest.raises(ValueError, match=r"does not accept obs_space='rgb'.*Encoders for 'rgb': resnet18, resnet50, vit_b"):
+    with pytest.raises(
+        ValueError, match=r"does not accept obs_space='rgb'.*Encoders for 'rgb': resnet18, resnet50, vit_b"
+    ):
         make_encoder("pointnet", "rgb")
     with pytest.raises(ValueError, match="Unknown encoder 'vit_h'.*pointnet"):
         make_encoder("vit_h", "rgb")
@@ -39,11 +41,19 @@ def test_registry_declares_spaces_and_refuses_wrong_pairs():
 def test_registry_states_its_contract():
     # one default per space, declared in the registry
     assert [default_encoder(s) for s in ("rgb", "depth", "rgbd", "pointmap", "pointcloud")] == [
-        "resnet50", "resnet50", "resnet50", "resnet50", "pointnet"]
+        "resnet50",
+        "resnet50",
+        "resnet50",
+        "resnet50",
+        "pointnet",
+    ]
     # options come from the builder's signature; a typo is refused, naming the accepted ones
     assert encoder_info("pointnet").options == ("point_features", "sampling", "num_tokens", "knn")
-    with pytest.raises(TypeError, match=r"'pointnet' takes no option\(s\) \['num_token'\]; it accepts: point_features, "
-                       "sampling, num_tokens, knn"):
+    with pytest.raises(
+        TypeError,
+        match=r"'pointnet' takes no option\(s\) \['num_token'\]; it accepts: point_features, "
+        "sampling, num_tokens, knn",
+    ):
         make_encoder("pointnet", "pointcloud", num_token=64)
     with pytest.raises(TypeError, match=r"'resnet18' takes no option\(s\) \['knn'\]; it accepts: pretrained"):
         encoder_output("resnet18", "rgb", knn=4)
@@ -65,11 +75,17 @@ def test_registry_states_its_contract():
 
 
 @pytest.mark.parametrize("output", ["tokens", "global"])
-@pytest.mark.parametrize("name,space,options", [
-    ("resnet18", "rgb", {}), ("resnet18", "pointmap", {}), ("vit_b", "depth", {"image_size": (48, 64)}),
-    ("multivit_b", "rgbd", {}), ("pointnet", "pointcloud", {"num_tokens": 24, "knn": 4}),
-    ("pointnet", "pointcloud", {"num_tokens": 24, "knn": 4, "sampling": "pre"}),
-])
+@pytest.mark.parametrize(
+    "name,space,options",
+    [
+        ("resnet18", "rgb", {}),
+        ("resnet18", "pointmap", {}),
+        ("vit_b", "depth", {"image_size": (48, 64)}),
+        ("multivit_b", "rgbd", {}),
+        ("pointnet", "pointcloud", {"num_tokens": 24, "knn": 4}),
+        ("pointnet", "pointcloud", {"num_tokens": 24, "knn": 4, "sampling": "pre"}),
+    ],
+)
 def test_declared_output_is_what_the_encoder_outputs(name, space, options, output, cloud):
     """`encoder_output` answers before anything is built, for one or several cameras."""
     for cameras in (1, 2):
@@ -82,7 +98,9 @@ def test_declared_output_is_what_the_encoder_outputs(name, space, options, outpu
                 result = encoder(torch.randn(2, cameras, input_channels(space), 48, 64))
         if output == "tokens":
             tokens, pos = result
-            assert declared.tokens is not None and tokens.shape[1:] == (declared.tokens, declared.width) == pos.shape[1:]
+            assert (
+                declared.tokens is not None and tokens.shape[1:] == (declared.tokens, declared.width) == pos.shape[1:]
+            )
         else:
             assert declared.tokens is None and result.shape[1:] == (declared.width,)
 
@@ -93,7 +111,9 @@ def test_resnet_any_channel_count_tokens_and_global(space, channels):
     tok_enc = make_encoder("resnet18", space, output="tokens", dim=32)
     tokens, pos = tok_enc(images)
     assert tokens.shape == (2, 2 * 2 * 2, 32) and pos.shape == (1, 8, 32)
-    assert encoder_output("resnet18", space, "tokens", dim=32, context=EncoderContext(2, (64, 64))) == EncoderOutput(8, 32)
+    assert encoder_output("resnet18", space, "tokens", dim=32, context=EncoderContext(2, (64, 64))) == EncoderOutput(
+        8, 32
+    )
     glob = make_encoder("resnet18", space, output="global")
     assert glob(images).shape == (2, 2 * 512)
     assert encoder_output("resnet18", space, "global", context=EncoderContext(2, (64, 64))) == EncoderOutput(None, 1024)
@@ -168,7 +188,7 @@ def test_pointnet_tokens_and_global(cloud, sampling):
 
 
 def _with_padding(cloud: PointCloud, extra: int) -> PointCloud:
-    pad = lambda t, v: torch.cat([t, torch.full((t.shape[0], extra, *t.shape[2:]), v, dtype=t.dtype)], 1)  # noqa: E731
+    pad = lambda t, v: torch.cat([t, torch.full((t.shape[0], extra, *t.shape[2:]), v, dtype=t.dtype)], 1)
     return PointCloud(pad(cloud.xyz, 3.0), pad(cloud.features, 7.0), pad(cloud.mask, False))
 
 

@@ -47,7 +47,9 @@ def test_camera_and_ee_frames_match_explicit_transforms(scene):
     # camera frame: inverse of cam2world applied by hand
     T = scene["cam2world"]
     cam_truth = (truth - T[:3, 3]) @ T[:3, :3]
-    cam = geometry.transform_points(torch.tensor(world[valid])[None], geometry.invert_transform(torch.tensor(T)[None]))[0]
+    cam = geometry.transform_points(torch.tensor(world[valid])[None], geometry.invert_transform(torch.tensor(T)[None]))[
+        0
+    ]
     assert np.abs(cam.numpy() - cam_truth).max() < 1.5e-3
     # ee frame: a pose given as xyz + quaternion (w, x, y, z); reference rotation from scipy
     rot = Rotation.from_euler("xyz", [0.3, -0.2, 1.1])
@@ -67,8 +69,9 @@ def test_quaternion_and_inverse_against_scipy():
     mats = geometry.quaternion_to_matrix(quat).numpy()
     np.testing.assert_allclose(mats, rots.as_matrix(), atol=1e-12)
     T = geometry.pose_to_matrix(torch.randn(16, 3, dtype=torch.float64), quat)
-    np.testing.assert_allclose((geometry.invert_transform(T) @ T).numpy(), np.broadcast_to(np.eye(4), (16, 4, 4)),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        (geometry.invert_transform(T) @ T).numpy(), np.broadcast_to(np.eye(4), (16, 4, 4)), atol=1e-12
+    )
 
 
 def test_crop_mask_keeps_only_points_inside_the_box():
@@ -170,8 +173,9 @@ def test_knn_matches_brute_force_and_ignores_padding(backend):
         if len(valid) >= 8:
             got = geometry.gather(xyz, idx)[b]
             ref = xyz[b, order[:, :8]]
-            np.testing.assert_allclose(((got - query[b, :, None]) ** 2).sum(-1), ((ref - query[b, :, None]) ** 2).sum(-1),
-                                       rtol=1e-5, atol=1e-7)
+            np.testing.assert_allclose(
+                ((got - query[b, :, None]) ** 2).sum(-1), ((ref - query[b, :, None]) ** 2).sum(-1), rtol=1e-5, atol=1e-7
+            )
         else:
             # fewer valid points than k: the neighbours are all valid points, missing ones repeat the nearest
             assert mask[b, idx[b]].all()

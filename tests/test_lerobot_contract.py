@@ -45,17 +45,27 @@ def test_obs_act_gives_stock_act_loss(tiny_dataset):
     policy, pre, _, dataset = training_setup("obs_act", "rgb", tiny_dataset, encoder="resnet18")
     batch = first_batch(dataset, pre, batch_size=4, shuffle=True)
     size = policy.config.camera_resolution
-    stock = ACTPolicy(ACTConfig(
-        input_features={**policy.config.input_features,
-                        image_key(CAM): PolicyFeature(FeatureType.VISUAL, (3, *size))},
-        output_features=policy.config.output_features, pretrained_backbone_weights=None, device="cpu",
-        n_action_steps=policy.config.n_action_steps,
-        **PRESETS["tiny"]["obs_act"]))
+    stock = ACTPolicy(
+        ACTConfig(
+            input_features={
+                **policy.config.input_features,
+                image_key(CAM): PolicyFeature(FeatureType.VISUAL, (3, *size)),
+            },
+            output_features=policy.config.output_features,
+            pretrained_backbone_weights=None,
+            device="cpu",
+            n_action_steps=policy.config.n_action_steps,
+            **PRESETS["tiny"]["obs_act"],
+        )
+    )
     own = policy.state_dict()
     stock_keys = set(stock.state_dict())
     # everything but BatchNorm's step counter and the ee-frame state buffers has a stock counterpart
-    mapped = {_stock_act_key(k): v for k, v in own.items()
-              if not k.endswith("num_batches_tracked") and not k.startswith("model.observation.state.")}
+    mapped = {
+        _stock_act_key(k): v
+        for k, v in own.items()
+        if not k.endswith("num_batches_tracked") and not k.startswith("model.observation.state.")
+    }
     assert set(mapped) == stock_keys
     stock.load_state_dict(mapped, strict=True)
 
@@ -86,13 +96,24 @@ def test_obs_diffusion_denoiser_and_loss_are_stock_diffusion(tiny_dataset):
         frames = {k: batch[k].flatten(0, 1) for k in model.observation.input_keys}
         feature = model.observation(frames).reshape(len(batch[STATE_KEY]), steps, -1)
     env = torch.cat([feature, batch[ENV_STATE_KEY]], dim=-1)
-    stock = DiffusionModel(DiffusionConfig(
-        input_features={STATE_KEY: policy.config.input_features[STATE_KEY],
-                        ENV_STATE_KEY: PolicyFeature(FeatureType.ENV, (env.shape[-1],))},
-        output_features=policy.config.output_features, device="cpu", **PRESETS["tiny"]["obs_diffusion"]))
+    stock = DiffusionModel(
+        DiffusionConfig(
+            input_features={
+                STATE_KEY: policy.config.input_features[STATE_KEY],
+                ENV_STATE_KEY: PolicyFeature(FeatureType.ENV, (env.shape[-1],)),
+            },
+            output_features=policy.config.output_features,
+            device="cpu",
+            **PRESETS["tiny"]["obs_diffusion"],
+        )
+    )
     stock.unet.load_state_dict(model.unet.state_dict(), strict=True)
-    stock_batch = {STATE_KEY: batch[STATE_KEY], ENV_STATE_KEY: env, ACTION_KEY: batch[ACTION_KEY],
-                   "action_is_pad": batch["action_is_pad"]}
+    stock_batch = {
+        STATE_KEY: batch[STATE_KEY],
+        ENV_STATE_KEY: env,
+        ACTION_KEY: batch[ACTION_KEY],
+        "action_is_pad": batch["action_is_pad"],
+    }
     results = []
     for diffusion, inputs in ((model, batch), (stock, stock_batch)):
         torch.manual_seed(0)  # same noise and timesteps
@@ -116,17 +137,20 @@ def test_loading_patches_apply_only_to_the_lerobot_they_were_written_for(caplog,
     assert lerobot_dataset.LeRobotDataset._query_hf_dataset is patches.query_hf_dataset_by_column
 
 
-@pytest.mark.parametrize("config_class,fields,words", [
-    (ObsACTConfig, {"vision_backbone": "resnet34"}, ["vision_backbone='resnet34'", "--policy.encoder"]),
-    (ObsACTConfig, {"pretrained_backbone_weights": "ResNet18_Weights.IMAGENET1K_V1"}, ["--policy.pretrained"]),
-    (ObsACTConfig, {"replace_final_stride_with_dilation": True}, ["keep their strides"]),
-    (ObsDiffusionConfig, {"crop_shape": (84, 84)}, ["crop_shape=(84, 84)", "image pipeline"]),
-    (ObsDiffusionConfig, {"spatial_softmax_num_keypoints": 16}, ["spatial_softmax_num_keypoints=16"]),
-    (ObsDiffusionConfig, {"use_group_norm": False}, ["use_group_norm=False"]),
-    (ObsDiffusionConfig, {"scheduler_name": "linear"}, ["scheduler_name='linear'", "OneCycle"]),
-    (ObsACTConfig, {"obs_space": "rgb", "num_tokens": 64}, ["num_tokens=64", "point-cloud design choice"]),
-    (ObsACTConfig, {"obs_space": "rgb", "knn": 8}, ["knn=8", "point-cloud design choice"]),
-])
+@pytest.mark.parametrize(
+    "config_class,fields,words",
+    [
+        (ObsACTConfig, {"vision_backbone": "resnet34"}, ["vision_backbone='resnet34'", "--policy.encoder"]),
+        (ObsACTConfig, {"pretrained_backbone_weights": "ResNet18_Weights.IMAGENET1K_V1"}, ["--policy.pretrained"]),
+        (ObsACTConfig, {"replace_final_stride_with_dilation": True}, ["keep their strides"]),
+        (ObsDiffusionConfig, {"crop_shape": (84, 84)}, ["crop_shape=(84, 84)", "image pipeline"]),
+        (ObsDiffusionConfig, {"spatial_softmax_num_keypoints": 16}, ["spatial_softmax_num_keypoints=16"]),
+        (ObsDiffusionConfig, {"use_group_norm": False}, ["use_group_norm=False"]),
+        (ObsDiffusionConfig, {"scheduler_name": "linear"}, ["scheduler_name='linear'", "OneCycle"]),
+        (ObsACTConfig, {"obs_space": "rgb", "num_tokens": 64}, ["num_tokens=64", "point-cloud design choice"]),
+        (ObsACTConfig, {"obs_space": "rgb", "knn": 8}, ["knn=8", "point-cloud design choice"]),
+    ],
+)
 def test_inherited_fields_that_would_be_ignored_are_refused(config_class, fields, words):
     with pytest.raises(ValueError) as err:
         config_class(device="cpu", **fields)

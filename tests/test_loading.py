@@ -85,6 +85,5 @@ def test_forked_dataloader_workers_use_the_fast_format(tiny_dataset):
     """lerobot-train loads with worker processes: the registered formatter must work there too."""
     ds = LeRobotDataset("local/test", root=tiny_dataset, delta_timestamps=DELTAS)
     serial = next(iter(torch.utils.data.DataLoader(ds, batch_size=8, num_workers=0)))
-    workers = next(iter(torch.utils.data.DataLoader(ds, batch_size=8, num_workers=2,
-                                                    multiprocessing_context="fork")))
+    workers = next(iter(torch.utils.data.DataLoader(ds, batch_size=8, num_workers=2, multiprocessing_context="fork")))
     assert_same_sample(serial, workers)

@@ -8,10 +8,10 @@ from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 from lerobot.datasets.utils import dataset_to_policy_features
 from safetensors.torch import load_file
 
-from lerobot_obsbench.schema import SchemaError
 from lerobot_obsbench.policies import ObsACTConfig, ObsDiffusionConfig
 from lerobot_obsbench.policies.obs_act.modeling_obs_act import ObsACTPolicy
 from lerobot_obsbench.policies.obs_diffusion.modeling_obs_diffusion import ObsDiffusionPolicy
+from lerobot_obsbench.schema import SchemaError
 from tests.helpers import first_batch, training_setup
 
 POLICIES = {"obs_act": (ObsACTConfig, ObsACTPolicy), "obs_diffusion": (ObsDiffusionConfig, ObsDiffusionPolicy)}
@@ -19,8 +19,20 @@ POLICIES = {"obs_act": (ObsACTConfig, ObsACTPolicy), "obs_diffusion": (ObsDiffus
 
 def test_paper_defaults():
     act = ObsACTConfig(device="cpu")
-    assert (act.obs_space, act.encoder, act.num_tokens, act.knn, act.voxel_size) == ("pointcloud", "pointnet", 2048, 16, 0.005)
-    assert (act.dim_model, act.n_heads, act.dim_feedforward, act.n_encoder_layers, act.n_decoder_layers) == (512, 8, 32, 4, 1)
+    assert (act.obs_space, act.encoder, act.num_tokens, act.knn, act.voxel_size) == (
+        "pointcloud",
+        "pointnet",
+        2048,
+        16,
+        0.005,
+    )
+    assert (act.dim_model, act.n_heads, act.dim_feedforward, act.n_encoder_layers, act.n_decoder_layers) == (
+        512,
+        8,
+        32,
+        4,
+        1,
+    )
     assert (act.chunk_size, act.temporal_ensemble_coeff, act.kl_weight, act.latent_dim) == (100, 0.01, 10.0, 32)
     assert act.pretrained_backbone_weights is None and act.push_to_hub is False
     dp = ObsDiffusionConfig(device="cpu", obs_space="rgb")
@@ -110,8 +122,11 @@ def test_save_load_round_trip_and_inference(tiny_dataset, tmp_path, policy_type,
     assert fresh.config.cameras == ["base_camera"] and fresh.config.obs_space == obs_space
 
     # inference as lerobot-eval calls it: one observation (no time axis) at a time
-    obs = {k: v[:, -1] if policy_type == "obs_diffusion" and k.startswith("observation") else v
-           for k, v in batch.items() if k.startswith("observation")}
+    obs = {
+        k: v[:, -1] if policy_type == "obs_diffusion" and k.startswith("observation") else v
+        for k, v in batch.items()
+        if k.startswith("observation")
+    }
     policy.eval()
     policy.reset()
     fresh.reset()
@@ -136,11 +151,15 @@ def test_env_passthrough_reaches_the_policy(tiny_dataset, policy_type):
 
     policy, pre, _, dataset = training_setup(policy_type, "pointcloud", tiny_dataset)
     sample = dataset[5]
-    frame = {k: (v[-1] if policy_type == "obs_diffusion" else v)[None]  # one frame, batch of 1
-             for k, v in sample.items() if k.startswith("observation") and not k.endswith("_is_pad")}
+    frame = {
+        k: (v[-1] if policy_type == "obs_diffusion" else v)[None]  # one frame, batch of 1
+        for k, v in sample.items()
+        if k.startswith("observation") and not k.endswith("_is_pad")
+    }
     env_frame = {k: v.numpy() for k, v in frame.items()}  # what ObsBenchEnv sends: uint8 HWC colour, uint16 depth
     env_frame["observation.images.base_camera"] = (
-        (frame["observation.images.base_camera"] * 255).round().byte().permute(0, 2, 3, 1).numpy())
+        (frame["observation.images.base_camera"] * 255).round().byte().permute(0, 2, 3, 1).numpy()
+    )
     env_frame["observation.depth.base_camera"] = env_frame["observation.depth.base_camera"].astype("uint16")
     via_env = pre(preprocess_observation(schema.frame_to_env_observation(env_frame)))
     assert "observation.robot_state" in via_env

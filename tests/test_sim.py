@@ -18,8 +18,7 @@ import numpy as np
 import pytest
 import torch
 
-from lerobot_obsbench import geometry
-from lerobot_obsbench import schema
+from lerobot_obsbench import geometry, schema
 from lerobot_obsbench.envs import ObsBenchEnvConfig, TaskError
 from lerobot_obsbench.envs.maniskill import ObsBenchEnv
 
@@ -52,9 +51,14 @@ def test_env_speaks_the_schema(env):
     assert "is_success" in info and isinstance(reward, float)
     # round trip to the dataset schema and back
     frame = schema.env_observation_to_frame(obs)
-    assert set(frame) == {"observation.images.base_camera", "observation.depth.base_camera",
-                          "observation.intrinsics.base_camera", "observation.cam2world.base_camera",
-                          "observation.state", "observation.environment_state"}
+    assert set(frame) == {
+        "observation.images.base_camera",
+        "observation.depth.base_camera",
+        "observation.intrinsics.base_camera",
+        "observation.cam2world.base_camera",
+        "observation.state",
+        "observation.environment_state",
+    }
     assert schema.frame_to_env_observation(frame).keys() == obs.keys()
 
 
@@ -86,9 +90,18 @@ def test_bad_env_input_is_explained():
 
 def test_missing_assets_fail_fast_without_prompting(tmp_path):
     proc = subprocess.run(
-        [sys.executable, "-c", "import lerobot_obsbench.envs.maniskill as m; m.ObsBenchEnv('TurnFaucet-v1', "
-         f"image_size=32, asset_dir={str(tmp_path)!r})"],
-        capture_output=True, text=True, env=ENV, stdin=subprocess.DEVNULL, timeout=120)
+        [
+            sys.executable,
+            "-c",
+            "import lerobot_obsbench.envs.maniskill as m; m.ObsBenchEnv('TurnFaucet-v1', "
+            f"image_size=32, asset_dir={str(tmp_path)!r})",
+        ],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        stdin=subprocess.DEVNULL,
+        timeout=120,
+    )
     assert proc.returncode != 0
     assert "mani_skill.utils.download_asset partnet_mobility_faucet" in proc.stderr
     assert f"--env.asset_dir={tmp_path}" in proc.stderr
@@ -96,17 +109,42 @@ def test_missing_assets_fail_fast_without_prompting(tmp_path):
 
 def test_missing_vulkan_driver_is_explained():
     proc = subprocess.run(
-        [sys.executable, "-c", "import lerobot_obsbench.envs.maniskill as m; m.ObsBenchEnv('PickCube-v1', image_size=32)"],
-        capture_output=True, text=True, env={**ENV, "VK_ICD_FILENAMES": "/nonexistent_icd.json"},
-        stdin=subprocess.DEVNULL, timeout=120)
+        [
+            sys.executable,
+            "-c",
+            "import lerobot_obsbench.envs.maniskill as m; m.ObsBenchEnv('PickCube-v1', image_size=32)",
+        ],
+        capture_output=True,
+        text=True,
+        env={**ENV, "VK_ICD_FILENAMES": "/nonexistent_icd.json"},
+        stdin=subprocess.DEVNULL,
+        timeout=120,
+    )
     assert proc.returncode != 0
     assert "RenderingError" in proc.stderr and "scripts/setup_system.sh" in proc.stderr
 
 
 def _demos(out: Path, episodes: int, *extra: str) -> subprocess.Popen:
-    return subprocess.Popen([str(BIN / "obsbench"), "demos", "--task", "PickCube-v1", "--episodes", str(episodes),
-                             "--out", str(out), "--image-size", str(SIZE), *extra], env=ENV,
-                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    return subprocess.Popen(
+        [
+            str(BIN / "obsbench"),
+            "demos",
+            "--task",
+            "PickCube-v1",
+            "--episodes",
+            str(episodes),
+            "--out",
+            str(out),
+            "--image-size",
+            str(SIZE),
+            *extra,
+        ],
+        env=ENV,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -137,8 +175,13 @@ def test_demos_resume_to_exactly_n_episodes(demos):
     assert min(info["seeds"]) >= 100_000, "demonstration seeds are disjoint from evaluation seeds (0..9999)"
     ds = LeRobotDataset("local/demos", root=demos)
     assert ds.meta.total_episodes == 5
-    assert sorted(set(ds.hf_dataset["episode_index"].tolist() if hasattr(ds.hf_dataset["episode_index"], "tolist")
-                      else [int(i) for i in ds.hf_dataset["episode_index"]])) == list(range(5))
+    assert sorted(
+        set(
+            ds.hf_dataset["episode_index"].tolist()
+            if hasattr(ds.hf_dataset["episode_index"], "tolist")
+            else [int(i) for i in ds.hf_dataset["episode_index"]]
+        )
+    ) == list(range(5))
     assert not (demos / ".episodes").exists()
     sample = ds[0]
     assert sample["observation.depth.base_camera"].shape == (SIZE, SIZE, 1)
@@ -166,21 +209,50 @@ def checkpoint(demos, tmp_path_factory) -> Path:
 
     out = tmp_path_factory.mktemp("train")
     train = subprocess.run(
-        [str(BIN / "lerobot-train"), "--policy.type=obs_act", "--policy.obs_space=pointcloud", "--policy.device=cpu",
-         *preset_args("tiny", "obs_act", "pointcloud"), "--dataset.repo_id=local/demos", f"--dataset.root={demos}",
-         "--batch_size=4", "--steps=4", "--save_freq=4", "--num_workers=0", "--wandb.enable=false",
-         f"--output_dir={out / 'run'}"],
-        capture_output=True, text=True, env=ENV, stdin=subprocess.DEVNULL, timeout=600)
+        [
+            str(BIN / "lerobot-train"),
+            "--policy.type=obs_act",
+            "--policy.obs_space=pointcloud",
+            "--policy.device=cpu",
+            *preset_args("tiny", "obs_act", "pointcloud"),
+            "--dataset.repo_id=local/demos",
+            f"--dataset.root={demos}",
+            "--batch_size=4",
+            "--steps=4",
+            "--save_freq=4",
+            "--num_workers=0",
+            "--wandb.enable=false",
+            f"--output_dir={out / 'run'}",
+        ],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        stdin=subprocess.DEVNULL,
+        timeout=600,
+    )
     assert train.returncode == 0, train.stderr[-3000:]
     return out / "run" / "checkpoints" / "last" / "pretrained_model"
 
 
 def test_end_to_end_demos_train_stock_lerobot_eval(checkpoint, tmp_path):
     evaluation = subprocess.run(
-        [str(BIN / "lerobot-eval"), f"--policy.path={checkpoint}", "--policy.device=cpu", "--env.type=obsbench",
-         "--env.task=PickCube-v1", f"--env.image_size={SIZE}", "--eval.n_episodes=2", "--eval.batch_size=1",
-         f"--output_dir={tmp_path / 'eval'}"],
-        capture_output=True, text=True, env=ENV, stdin=subprocess.DEVNULL, timeout=600)
+        [
+            str(BIN / "lerobot-eval"),
+            f"--policy.path={checkpoint}",
+            "--policy.device=cpu",
+            "--env.type=obsbench",
+            "--env.task=PickCube-v1",
+            f"--env.image_size={SIZE}",
+            "--eval.n_episodes=2",
+            "--eval.batch_size=1",
+            f"--output_dir={tmp_path / 'eval'}",
+        ],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        stdin=subprocess.DEVNULL,
+        timeout=600,
+    )
     assert evaluation.returncode == 0, evaluation.stderr[-3000:]
     out = evaluation.stdout + evaluation.stderr
     assert "'pc_success'" in out and "'n_episodes': 2" in out
@@ -195,8 +267,10 @@ def test_obsbench_eval_is_deterministic_and_complete(checkpoint, tmp_path):
     assert first["per_episode"] == second["per_episode"]
     assert 0 <= first["ci95"][0] <= first["success_rate"] <= first["ci95"][1] <= 1
     assert first["episode_length_mean"] > 0
-    assert sorted(p.name for p in (tmp_path / "videos").glob("*.mp4")) == ["PickCube-v1_seed0.mp4",
-                                                                           "PickCube-v1_seed1.mp4"]
+    assert sorted(p.name for p in (tmp_path / "videos").glob("*.mp4")) == [
+        "PickCube-v1_seed0.mp4",
+        "PickCube-v1_seed1.mp4",
+    ]
 
 
 def test_policy_env_mismatch_is_explained(checkpoint):
@@ -248,8 +322,9 @@ def test_import_maniskill_trajectories_written_by_record_episode(tmp_path):
                 np.testing.assert_allclose(sample["observation.state"][:9].numpy(), qpos[t], atol=1e-5)
 
 
-@pytest.mark.parametrize("task", ["StackCube-v1", "PushCube-v1", "PullCube-v1", "LiftPegUpright-v1", "PegInsertionSide-v1",
-                                  "PlugCharger-v1"])
+@pytest.mark.parametrize(
+    "task", ["StackCube-v1", "PushCube-v1", "PullCube-v1", "LiftPegUpright-v1", "PegInsertionSide-v1", "PlugCharger-v1"]
+)
 def test_demos_for_every_task_with_an_expert(task, tmp_path):
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
@@ -275,8 +350,14 @@ def test_demo_errors(tmp_path):
 
 
 def test_doctor_reports_rendering_and_tasks_in_plain_words():
-    proc = subprocess.run([str(BIN / "obsbench"), "doctor"], capture_output=True, text=True, env=ENV,
-                          stdin=subprocess.DEVNULL, timeout=300)
+    proc = subprocess.run(
+        [str(BIN / "obsbench"), "doctor"],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        stdin=subprocess.DEVNULL,
+        timeout=300,
+    )
     assert "ok      rendering works" in proc.stdout
     assert "ok      PickCube-v1 runs offline" in proc.stdout
     assert "TurnFaucet-v1" in proc.stdout and "download_asset partnet_mobility_faucet" in proc.stdout
@@ -286,8 +367,12 @@ def test_doctor_reports_rendering_and_tasks_in_plain_words():
 def test_peg_insertion_reports_grasp_align_insert():
     env = ObsBenchEnv("PegInsertionSide-v1", image_size=32)
     _, info = env.reset(seed=100_000)
-    assert info == {"is_success": False, "sub_success/grasp": False, "sub_success/align": False,
-                    "sub_success/insert": False}
+    assert info == {
+        "is_success": False,
+        "sub_success/grasp": False,
+        "sub_success/align": False,
+        "sub_success/insert": False,
+    }
     expert, history = env.spec_.make_expert(env), []
     for _ in range(100):
         action = expert.act()
@@ -308,8 +393,11 @@ def test_perturbations_change_what_they_name_and_nothing_else():
         e = ObsBenchEnv("PushCube-v1", image_size=SIZE, perturbation=perturbation)
         obs, _ = e.reset(seed=0)
         e.close()
-        return (obs["pixels"]["base_camera"].astype(float), obs["robot_state"]["depth.base_camera"].astype(float),
-                obs["robot_state"]["cam2world.base_camera"])
+        return (
+            obs["pixels"]["base_camera"].astype(float),
+            obs["robot_state"]["depth.base_camera"].astype(float),
+            obs["robot_state"]["cam2world.base_camera"],
+        )
 
     rgb, depth, cam2world = first_frame(None)
     target = np.array([-0.1, 0.0, 0.1])  # PushCube's camera looks at this point from [0.3, 0, 0.6]

@@ -74,7 +74,10 @@ def test_camera_and_ee_frames(batch):
     # point cloud in the camera frame: mapped back to the world, every point lies in the workspace crop
     cam = ObservationAdapter("pointcloud", [CAM], frame="camera", workspace=WORKSPACE).eval()(batch)
     back = geometry.transform_points(cam.xyz, cam2world)
-    assert geometry.crop_mask(back, cam.mask, [w + d for w, d in zip(WORKSPACE, [-1e-4, 1e-4] * 3)]).sum() == cam.mask.sum()
+    assert (
+        geometry.crop_mask(back, cam.mask, [w + d for w, d in zip(WORKSPACE, [-1e-4, 1e-4] * 3, strict=True)]).sum()
+        == cam.mask.sum()
+    )
     assert (cam.xyz[cam.mask][:, 2] > 0.3).all(), "camera z is the distance in front of the camera"
     # end-effector frame: the gripper box is centred on the ee origin; undo the ee yaw to get its faces back
     state = batch["observation.state"]

@@ -17,13 +17,26 @@ BIN = Path(sys.executable).parent
 SPACES = ["rgb", "depth", "rgbd", "pointmap", "pointcloud"]
 
 
-def lerobot_train(dataset: Path, out: Path, policy_type: str, obs_space: str, *extra: str) -> subprocess.CompletedProcess:
+def lerobot_train(
+    dataset: Path, out: Path, policy_type: str, obs_space: str, *extra: str
+) -> subprocess.CompletedProcess:
     cmd = [
-        str(BIN / "lerobot-train"), f"--policy.type={policy_type}", f"--policy.obs_space={obs_space}",
-        "--policy.device=cpu", "--dataset.repo_id=local/synthetic", f"--dataset.root={dataset}",
-        "--policy.workspace=[-0.5,0.5,-0.5,0.5,0.005,0.5]", "--batch_size=2", "--steps=2", "--save_freq=2",
-        "--log_freq=1", "--num_workers=0", "--wandb.enable=false", f"--output_dir={out}",
-        *preset_args("tiny", policy_type, obs_space), *extra,
+        str(BIN / "lerobot-train"),
+        f"--policy.type={policy_type}",
+        f"--policy.obs_space={obs_space}",
+        "--policy.device=cpu",
+        "--dataset.repo_id=local/synthetic",
+        f"--dataset.root={dataset}",
+        "--policy.workspace=[-0.5,0.5,-0.5,0.5,0.005,0.5]",
+        "--batch_size=2",
+        "--steps=2",
+        "--save_freq=2",
+        "--log_freq=1",
+        "--num_workers=0",
+        "--wandb.enable=false",
+        f"--output_dir={out}",
+        *preset_args("tiny", policy_type, obs_space),
+        *extra,
     ]
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "HF_DATASETS_OFFLINE": "1"}
     return subprocess.run(cmd, capture_output=True, text=True, env=env, stdin=subprocess.DEVNULL, timeout=600)
@@ -50,21 +63,24 @@ def test_lerobot_train_reports_a_space_the_dataset_cannot_serve(tmp_path, synthe
 
     features = synthetic_module.features(32, "base_camera", use_video=False)
     features = {k: v for k, v in features.items() if "depth" not in k}
-    ds = LeRobotDataset.create("local/rgb_only", fps=10, features=features, root=tmp_path / "rgb_only",
-                               use_videos=False)
+    ds = LeRobotDataset.create(
+        "local/rgb_only", fps=10, features=features, root=tmp_path / "rgb_only", use_videos=False
+    )
     import numpy as np
 
     for _ in range(2):
         for _ in range(4):
-            ds.add_frame({
-                "observation.images.base_camera": np.zeros((32, 32, 3), np.uint8),
-                "observation.intrinsics.base_camera": np.eye(3, dtype=np.float32),
-                "observation.cam2world.base_camera": np.eye(4, dtype=np.float32),
-                "observation.state": np.zeros(15, np.float32),
-                "observation.environment_state": np.zeros(3, np.float32),
-                "action": np.zeros(7, np.float32),
-                "task": "t",
-            })
+            ds.add_frame(
+                {
+                    "observation.images.base_camera": np.zeros((32, 32, 3), np.uint8),
+                    "observation.intrinsics.base_camera": np.eye(3, dtype=np.float32),
+                    "observation.cam2world.base_camera": np.eye(4, dtype=np.float32),
+                    "observation.state": np.zeros(15, np.float32),
+                    "observation.environment_state": np.zeros(3, np.float32),
+                    "action": np.zeros(7, np.float32),
+                    "task": "t",
+                }
+            )
         ds.save_episode()
     ds.finalize()
     proc = lerobot_train(tmp_path / "rgb_only", tmp_path / "run", "obs_act", "pointcloud")

@@ -130,22 +130,38 @@ class Grid:
     def budget(self, policy: str) -> tuple[int | None, float | None]:
         def pick(value):
             return value.get(policy) if isinstance(value, dict) else value
+
         return pick(self.steps), pick(self.epochs)
 
     def expand(self) -> list[RunSpec]:
         runs = []
         for task, space, policy, variant, demos, lr, seed in itertools.product(
-                self.tasks, self.obs_spaces, self.policies, self.variants, self.demos, self.learning_rates, self.seeds):
+            self.tasks, self.obs_spaces, self.policies, self.variants, self.demos, self.learning_rates, self.seeds
+        ):
             steps, epochs = self.budget(policy)
             overrides = {**self.policy_overrides, **variant}
             for encoder in self.encoders[space]:
-                runs.append(RunSpec(
-                    task=task, obs_space=space, encoder=encoder, policy=policy, seed=seed, lr=lr, demos=demos,
-                    preset=self.preset, batch_size=self.batch_size, steps=steps, epochs=epochs,
-                    image_size=self.image_size, cameras=tuple(self.cameras), control_mode=self.control_mode,
-                    eval_episodes=self.eval_episodes, perturbations=tuple(self.perturbations),
-                    policy_overrides=tuple(sorted(overrides.items())),
-                ))
+                runs.append(
+                    RunSpec(
+                        task=task,
+                        obs_space=space,
+                        encoder=encoder,
+                        policy=policy,
+                        seed=seed,
+                        lr=lr,
+                        demos=demos,
+                        preset=self.preset,
+                        batch_size=self.batch_size,
+                        steps=steps,
+                        epochs=epochs,
+                        image_size=self.image_size,
+                        cameras=tuple(self.cameras),
+                        control_mode=self.control_mode,
+                        eval_episodes=self.eval_episodes,
+                        perturbations=tuple(self.perturbations),
+                        policy_overrides=tuple(sorted(overrides.items())),
+                    )
+                )
         return runs
 
 
@@ -178,12 +194,16 @@ def _resolve_encoders(spec, spaces: list[str], preset: str) -> dict[str, list[st
     resolved = {s: [n for n in names if s in _accepts(n)] for s in spaces}
     for name in names:
         if not any(name in resolved[s] for s in spaces):
-            raise GridError(f"encoder {name!r} accepts none of the grid's obs_spaces {spaces} (it accepts "
-                            f"{', '.join(_accepts(name))})")
+            raise GridError(
+                f"encoder {name!r} accepts none of the grid's obs_spaces {spaces} (it accepts "
+                f"{', '.join(_accepts(name))})"
+            )
     for space, chosen in resolved.items():
         if not chosen:
-            raise GridError(f"no listed encoder accepts obs_space {space!r}; encoders for it: "
-                            f"{', '.join(available_encoders(space))}")
+            raise GridError(
+                f"no listed encoder accepts obs_space {space!r}; encoders for it: "
+                f"{', '.join(available_encoders(space))}"
+            )
     return resolved
 
 
@@ -209,21 +229,40 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
     preset = values.get("preset", "cpu")
     _choose([preset], list(PRESETS), "preset")
     grid = Grid(
-        name=str(values["name"]), tasks=tasks, obs_spaces=spaces, policies=policies,
+        name=str(values["name"]),
+        tasks=tasks,
+        obs_spaces=spaces,
+        policies=policies,
         seeds=[int(s) for s in _as_list(values.get("seeds", [1000]), "seeds")],
         learning_rates=[float(lr) for lr in _as_list(values.get("learning_rates", [1e-4]), "learning_rates")],
-        demos=[int(n) for n in _as_list(values.get("demos", [100]), "demos")], preset=preset,
+        demos=[int(n) for n in _as_list(values.get("demos", [100]), "demos")],
+        preset=preset,
         encoders=_resolve_encoders(values.get("encoders"), spaces, preset),
-        **{k: values[k] for k in ("batch_size", "steps", "epochs", "image_size", "cameras", "control_mode",
-                                  "eval_episodes", "perturbations", "policy_overrides", "variants",
-                                  "description")
-           if k in values},
+        **{
+            k: values[k]
+            for k in (
+                "batch_size",
+                "steps",
+                "epochs",
+                "image_size",
+                "cameras",
+                "control_mode",
+                "eval_episodes",
+                "perturbations",
+                "policy_overrides",
+                "variants",
+                "description",
+            )
+            if k in values
+        },
     )
     for policy in policies:
         steps, epochs = grid.budget(policy)
         if (steps is None) == (epochs is None):
-            raise GridError(f"{name}: give exactly one training budget for {policy}: `steps` (optimizer steps) or "
-                            "`epochs` (passes over the demos), as a number or a mapping policy -> number")
+            raise GridError(
+                f"{name}: give exactly one training budget for {policy}: `steps` (optimizer steps) or "
+                "`epochs` (passes over the demos), as a number or a mapping policy -> number"
+            )
     if min(grid.demos) < 1 or grid.eval_episodes < 1 or grid.batch_size < 1:
         raise GridError(f"{name}: demos, eval_episodes and batch_size must be >= 1")
     for text in grid.perturbations:
@@ -234,8 +273,10 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
     if len(set(grid.perturbations)) != len(grid.perturbations):
         raise GridError(f"{name}: perturbations are listed twice: {grid.perturbations}")
     if grid.control_mode != DEFAULT_CONTROL_MODE:
-        raise GridError(f"{name}: the scripted experts record demos with control_mode {DEFAULT_CONTROL_MODE}; got "
-                        f"{grid.control_mode!r}")
+        raise GridError(
+            f"{name}: the scripted experts record demos with control_mode {DEFAULT_CONTROL_MODE}; got "
+            f"{grid.control_mode!r}"
+        )
     if not grid.variants or not all(isinstance(v, dict) for v in grid.variants):
         raise GridError(f"{name}: variants is a list of mappings of --policy.* fields, e.g. [{{}}, {{sampling: pre}}]")
     check_policy_configs(grid, name)
@@ -254,8 +295,11 @@ def check_policy_configs(grid: Grid, name: str) -> None:
             continue
         seen.add(key)
         config_class = PreTrainedConfig.get_choice_class(run.policy)
-        fields = {**preset_overrides(run.preset, run.policy, run.obs_space), "encoder": run.encoder,
-                  **dict(run.policy_overrides)}
+        fields = {
+            **preset_overrides(run.preset, run.policy, run.obs_space),
+            "encoder": run.encoder,
+            **dict(run.policy_overrides),
+        }
         unknown = sorted(set(fields) - set(config_class.__dataclass_fields__))
         if unknown:
             raise GridError(f"{name}: {run.policy} has no fields {unknown} (policy_overrides / variants)")

@@ -56,8 +56,14 @@ def summarize(table: dict[str, dict[str, float]]) -> dict[str, dict]:
         for method, rank in competition_ranks(row).items():
             rates[method].append(row[method])
             ranks[method].append(rank)
-    return {m: {"mean_sr": sum(rates[m]) / len(rates[m]), "mean_rank": sum(ranks[m]) / len(ranks[m]),
-                "tasks": len(rates[m])} for m in rates}
+    return {
+        m: {
+            "mean_sr": sum(rates[m]) / len(rates[m]),
+            "mean_rank": sum(ranks[m]) / len(ranks[m]),
+            "tasks": len(rates[m]),
+        }
+        for m in rates
+    }
 
 
 def read_published(path: Path) -> dict[str, dict[str, float]]:
@@ -75,7 +81,7 @@ def read_published(path: Path) -> dict[str, dict[str, float]]:
         if len(row) != len(methods) + 1:
             raise ReportError(f"{path}:{number}: {len(row)} cells, the header has {len(methods) + 1}")
         values = {}
-        for method, text in zip(methods, row[1:]):
+        for method, text in zip(methods, row[1:], strict=True):
             if not text.strip():
                 continue
             try:
@@ -99,8 +105,7 @@ def method_labels(records: list[dict]) -> dict[str, str]:
         by_method[r["method"]].append(r)
     labels = {}
     for method, group in by_method.items():
-        varying = [f for f in LABEL_FIELDS
-                   if len({json.dumps(g["config"].get(f), sort_keys=True) for g in group}) > 1]
+        varying = [f for f in LABEL_FIELDS if len({json.dumps(g["config"].get(f), sort_keys=True) for g in group}) > 1]
         for r in group:
             suffix = " ".join(f"{f}={_short(r['config'].get(f))}" for f in varying)
             labels[r["run_id"]] = f"{method} {suffix}".strip()
@@ -111,8 +116,9 @@ def _short(value) -> str:
     return f"{value:g}" if isinstance(value, float) else json.dumps(value) if isinstance(value, dict) else str(value)
 
 
-def pooled_cells(records: list[dict], perturbation: str = "none", demos: int | None = None
-                 ) -> dict[str, dict[str, Cell]]:
+def pooled_cells(
+    records: list[dict], perturbation: str = "none", demos: int | None = None
+) -> dict[str, dict[str, Cell]]:
     """{task: {label: Cell}} pooling seeds; `demos` None = each task's largest demo count."""
     labels = method_labels(records)
     most = defaultdict(int)
@@ -175,8 +181,15 @@ def table_rows(table: dict[str, dict[str, float]], cells: dict[str, dict[str, Ce
         rows.append((task, out))
     for key, title, lower in (("mean_sr", "Mean S.R.", False), ("mean_rank", "Mean Rank", True)):
         marks = _summary_marks(summary, key, lower)
-        rows.append((title, [(f"{summary[m][key]:.2f}" + ("*" if summary[m]["tasks"] < n_tasks else ""),
-                              marks.get(m)) for m in methods]))
+        rows.append(
+            (
+                title,
+                [
+                    (f"{summary[m][key]:.2f}" + ("*" if summary[m]["tasks"] < n_tasks else ""), marks.get(m))
+                    for m in methods
+                ],
+            )
+        )
     return ["task", *methods], rows
 
 
@@ -195,8 +208,10 @@ def html_table(header, rows) -> str:
         return f"<b>{text}</b>" if mark == "best" else f"<u>{text}</u>" if mark == "second" else text
 
     head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
-    body = "".join("<tr><td>" + html.escape(task) + "</td>" + "".join(f"<td>{fmt(*c)}</td>" for c in cells)
-                   + "</tr>" for task, cells in rows)
+    body = "".join(
+        "<tr><td>" + html.escape(task) + "</td>" + "".join(f"<td>{fmt(*c)}</td>" for c in cells) + "</tr>"
+        for task, cells in rows
+    )
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
@@ -214,19 +229,22 @@ def bar_chart(cells: dict[str, dict[str, Cell]]) -> bytes:
 
     tasks = list(cells)
     cols = min(3, len(tasks))
-    fig, axes = plt.subplots(math.ceil(len(tasks) / cols), cols, figsize=(4.5 * cols, 3.2 * math.ceil(len(tasks) / cols)),
-                             squeeze=False)
-    for ax, task in zip(axes.flat, tasks):
+    fig, axes = plt.subplots(
+        math.ceil(len(tasks) / cols), cols, figsize=(4.5 * cols, 3.2 * math.ceil(len(tasks) / cols)), squeeze=False
+    )
+    for ax, task in zip(axes.flat, tasks, strict=False):
         methods = sorted(cells[task])
         values = [cells[task][m].rate for m in methods]
-        errors = [[v - cells[task][m].ci95[0] for m, v in zip(methods, values)],
-                  [cells[task][m].ci95[1] - v for m, v in zip(methods, values)]]
+        errors = [
+            [v - cells[task][m].ci95[0] for m, v in zip(methods, values, strict=True)],
+            [cells[task][m].ci95[1] - v for m, v in zip(methods, values, strict=True)],
+        ]
         ax.bar(range(len(methods)), values, yerr=errors, capsize=3, color=[f"C{i}" for i in range(len(methods))])
         ax.set_xticks(range(len(methods)), methods, rotation=30, ha="right", fontsize=7)
         ax.set_ylim(0, 1)
         ax.set_title(task, fontsize=9)
         ax.set_ylabel("success rate (95% CI)", fontsize=8)
-    for ax in list(axes.flat)[len(tasks):]:
+    for ax in list(axes.flat)[len(tasks) :]:
         ax.axis("off")
     fig.tight_layout()
     png = _figure_png(fig)
@@ -242,7 +260,7 @@ def curve_chart(series: dict[str, list[tuple[float, float]]], xlabel: str, title
 
     fig, ax = plt.subplots(figsize=(5.5, 3.5))
     for method, points in sorted(series.items()):
-        xs, ys = zip(*sorted(points))
+        xs, ys = zip(*sorted(points), strict=True)
         ax.plot(xs, ys, marker="o", label=method)
     if log_x:
         ax.set_xscale("log")
@@ -287,8 +305,9 @@ def _mean_over_tasks(cells: dict[str, dict[str, Cell]]) -> dict[str, float]:
     return {m: s["mean_sr"] for m, s in summarize(rates(cells)).items()}
 
 
-def build_report(records: list[dict], published: dict[str, dict[str, float]] | None = None,
-                 published_name: str = "published") -> dict:
+def build_report(
+    records: list[dict], published: dict[str, dict[str, float]] | None = None, published_name: str = "published"
+) -> dict:
     """Everything the report shows: tables (header, rows), PNG figures and the JSON summary."""
     if not records and not published:
         raise ReportError("nothing to report: no results records and no --table")
@@ -296,25 +315,33 @@ def build_report(records: list[dict], published: dict[str, dict[str, float]] | N
     if records:
         cells = pooled_cells(records)
         table = rates(cells)
-        sections.append(("Success rate per task (held-out seeds, seeds pooled, 95% Wilson interval, successes/episodes)",
-                         table_rows(table, cells)))
+        sections.append(
+            (
+                "Success rate per task (held-out seeds, seeds pooled, 95% Wilson interval, successes/episodes)",
+                table_rows(table, cells),
+            )
+        )
         summary["results"] = summarize(table)
         figures["success_by_task.png"] = ("Success rate per task", bar_chart(cells))
         for kind, series in perturbation_series(records).items():
-            figures[f"generalization_{kind}.png"] = (f"Zero-shot {kind}",
-                                                     curve_chart(series, kind, f"Zero-shot generalization: {kind}"))
+            figures[f"generalization_{kind}.png"] = (
+                f"Zero-shot {kind}",
+                curve_chart(series, kind, f"Zero-shot generalization: {kind}"),
+            )
         if len({r["config"]["demos"] for r in records}) > 1:
-            figures["sample_efficiency.png"] = ("Sample efficiency",
-                                                curve_chart(demo_series(records), "demonstrations",
-                                                            "Sample efficiency", log_x=True))
+            figures["sample_efficiency.png"] = (
+                "Sample efficiency",
+                curve_chart(demo_series(records), "demonstrations", "Sample efficiency", log_x=True),
+            )
     if published:
         sections.append((f"Published table ({published_name})", table_rows(published)))
         summary["published"] = summarize(published)
         if records:
             shared = [t for t in table if t in published]
             if shared:
-                combined = {t: {**{f"{m} ({published_name})": v for m, v in published[t].items()}, **table[t]}
-                            for t in shared}
+                combined = {
+                    t: {**{f"{m} ({published_name})": v for m, v in published[t].items()}, **table[t]} for t in shared
+                }
                 sections.append((f"Side by side on the shared tasks ({', '.join(shared)})", table_rows(combined)))
     return {"sections": sections, "figures": figures, "summary": summary}
 
@@ -329,22 +356,36 @@ def write_report(report: dict, out: Path, title: str = "OBSBench report", notes:
     for heading, (header, rows) in report["sections"]:
         md += [f"## {heading}", "", markdown_table(header, rows), ""]
         body += [f"<h2>{html.escape(heading)}</h2>", html_table(header, rows)]
-    legend = ("Best per row in bold, second underlined. Mean Rank: competition ranking per task (ties share the "
-              "best rank), averaged over tasks; * = the method lacks some tasks (means over its tasks).")
+    legend = (
+        "Best per row in bold, second underlined. Mean Rank: competition ranking per task (ties share the "
+        "best rank), averaged over tasks; * = the method lacks some tasks (means over its tasks)."
+    )
     md += [legend, ""]
     body.append(f"<p>{html.escape(legend)}</p>")
     for name, (caption, png) in report["figures"].items():
         md += [f"## {caption}", "", f"![{caption}]({name})", ""]
         data = base64.b64encode(png).decode()
-        body += [f"<h2>{html.escape(caption)}</h2>", f'<img alt="{html.escape(caption)}" src="data:image/png;base64,{data}">']
-    style = ("body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}td,th{border:1px solid #ccc;"
-             "padding:4px 8px;text-align:right}td:first-child,th:first-child{text-align:left}")
+        body += [
+            f"<h2>{html.escape(caption)}</h2>",
+            f'<img alt="{html.escape(caption)}" src="data:image/png;base64,{data}">',
+        ]
+    style = (
+        "body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}td,th{border:1px solid #ccc;"
+        "padding:4px 8px;text-align:right}td:first-child,th:first-child{text-align:left}"
+    )
     (out / "report.md").write_text("\n".join(md))
-    (out / "report.html").write_text(f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}"
-                                     f"</title><style>{style}</style></head><body>{''.join(body)}</body></html>\n")
+    (out / "report.html").write_text(
+        f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}"
+        f"</title><style>{style}</style></head><body>{''.join(body)}</body></html>\n"
+    )
     return {"markdown": out / "report.md", "html": out / "report.html"}
 
 
 def summary_json(report: dict) -> dict:
-    return {source: {m: {"mean_sr": round(s["mean_sr"], 4), "mean_rank": round(s["mean_rank"], 4), "tasks": s["tasks"]}
-                     for m, s in summary.items()} for source, summary in report["summary"].items()}
+    return {
+        source: {
+            m: {"mean_sr": round(s["mean_sr"], 4), "mean_rank": round(s["mean_rank"], 4), "tasks": s["tasks"]}
+            for m, s in summary.items()
+        }
+        for source, summary in report["summary"].items()
+    }

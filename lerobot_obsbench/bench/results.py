@@ -28,8 +28,10 @@ def read_results(path: Path, warn=None) -> list[dict]:
         try:
             record = json.loads(line)
         except json.JSONDecodeError as err:
-            warn(f"{path}:{number}: corrupted results line skipped ({err.msg} at column {err.colno}); "
-                 "its run will be redone")
+            warn(
+                f"{path}:{number}: corrupted results line skipped ({err.msg} at column {err.colno}); "
+                "its run will be redone"
+            )
             continue
         missing = [k for k in REQUIRED if not isinstance(record, dict) or k not in record]
         if missing:

@@ -30,7 +30,7 @@ import subprocess
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from importlib import metadata
 from multiprocessing import get_context
 from pathlib import Path
@@ -95,22 +95,35 @@ def training_steps(run: RunSpec, dataset: Path) -> int:
     return max(1, math.ceil(run.epochs * sum(lengths) / run.batch_size))
 
 
-def train_command(run: RunSpec, dataset: Path, output_dir: Path, steps: int, device: str,
-                  loader_workers: int = 0) -> list[str]:
+def train_command(
+    run: RunSpec, dataset: Path, output_dir: Path, steps: int, device: str, loader_workers: int = 0
+) -> list[str]:
     from lerobot_obsbench.presets import preset_args
 
     overrides = [f"--policy.{k}={_cli_value(v)}" for k, v in run.policy_overrides]
     sizes = [a for a in preset_args(run.preset, run.policy, run.obs_space) if not a.startswith("--policy.encoder=")]
     return [
-        str(Path(sys.executable).parent / "lerobot-train"), f"--policy.type={run.policy}",
-        f"--policy.obs_space={run.obs_space}", *sizes,
-        f"--policy.encoder={run.encoder}", f"--policy.cameras=[{','.join(run.cameras)}]", *overrides,
-        f"--policy.optimizer_lr={run.lr}", f"--policy.device={device}",
-        "--dataset.repo_id=local/obsbench", f"--dataset.root={dataset}",
+        str(Path(sys.executable).parent / "lerobot-train"),
+        f"--policy.type={run.policy}",
+        f"--policy.obs_space={run.obs_space}",
+        *sizes,
+        f"--policy.encoder={run.encoder}",
+        f"--policy.cameras=[{','.join(run.cameras)}]",
+        *overrides,
+        f"--policy.optimizer_lr={run.lr}",
+        f"--policy.device={device}",
+        "--dataset.repo_id=local/obsbench",
+        f"--dataset.root={dataset}",
         f"--dataset.episodes=[{','.join(str(i) for i in range(run.demos))}]",
-        f"--seed={run.seed}", f"--batch_size={run.batch_size}", f"--steps={steps}", f"--save_freq={steps}",
-        f"--log_freq={max(steps // 20, 1)}", f"--num_workers={loader_workers}", "--wandb.enable=false",
-        f"--output_dir={output_dir}", f"--job_name=obsbench_{run.run_id}",
+        f"--seed={run.seed}",
+        f"--batch_size={run.batch_size}",
+        f"--steps={steps}",
+        f"--save_freq={steps}",
+        f"--log_freq={max(steps // 20, 1)}",
+        f"--num_workers={loader_workers}",
+        "--wandb.enable=false",
+        f"--output_dir={output_dir}",
+        f"--job_name=obsbench_{run.run_id}",
     ]
 
 
@@ -135,35 +148,59 @@ def execute_run(config: dict, dataset: str, out_dir: str, device: str = "cpu", l
     steps = training_steps(run, Path(dataset))
     start = time.time()
     with open(root / "train.log", "w") as log:
-        done = subprocess.run(train_command(run, Path(dataset), root / "train", steps, device, loader_workers), stdout=log,
-                              stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, preexec_fn=_die_with_parent,
-                              env={**os.environ, "HF_HUB_OFFLINE": "1"})
+        done = subprocess.run(
+            train_command(run, Path(dataset), root / "train", steps, device, loader_workers),
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            preexec_fn=_die_with_parent,
+            env={**os.environ, "HF_HUB_OFFLINE": "1"},
+        )
     train_s = time.time() - start
     checkpoint = root / "train" / "checkpoints" / "last" / "pretrained_model"
     if done.returncode != 0 or not checkpoint.is_dir():
         tail = "".join((root / "train.log").read_text().splitlines(keepends=True)[-15:])
-        raise RunError(f"training of run {run.run_id} ({run.method} on {run.task}) failed with exit code "
-                       f"{done.returncode}; log {root / 'train.log'}:\n{tail}")
+        raise RunError(
+            f"training of run {run.run_id} ({run.method} on {run.task}) failed with exit code "
+            f"{done.returncode}; log {root / 'train.log'}:\n{tail}"
+        )
     evaluations, eval_s = {}, 0.0
     for perturbation in ("none", *run.perturbations):
-        result = evaluate(checkpoint, run.task, run.eval_episodes, image_size=run.image_size,
-                          control_mode=run.control_mode, device=device, perturbation=perturbation, progress=False)
+        result = evaluate(
+            checkpoint,
+            run.task,
+            run.eval_episodes,
+            image_size=run.image_size,
+            control_mode=run.control_mode,
+            device=device,
+            perturbation=perturbation,
+            progress=False,
+        )
         (root / "eval").mkdir(exist_ok=True)
         (root / "eval" / f"{perturbation.replace(':', '_')}.json").write_text(json.dumps(result, indent=2) + "\n")
         evaluations[perturbation] = _evaluation_summary(result)
         eval_s += result["wall_s"]
     return {
-        "run_id": run.run_id, "config": run.config(), "method": run.method, "task": run.task,
-        "evaluations": evaluations, "train_steps": steps, "checkpoint": str(checkpoint), "device": device,
-        "timings": {"train_s": round(train_s, 1), "eval_s": round(eval_s, 1)}, "versions": versions(),
-        "finished_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "run_id": run.run_id,
+        "config": run.config(),
+        "method": run.method,
+        "task": run.task,
+        "evaluations": evaluations,
+        "train_steps": steps,
+        "checkpoint": str(checkpoint),
+        "device": device,
+        "timings": {"train_s": round(train_s, 1), "eval_s": round(eval_s, 1)},
+        "versions": versions(),
+        "finished_at": datetime.now(UTC).isoformat(timespec="seconds"),
     }
 
 
 def describe(run: RunSpec) -> str:
     budget = f"{run.steps} steps" if run.steps is not None else f"{run.epochs:g} epochs"
-    return (f"{run.run_id}  {run.task:20s} {run.method:34s} demos {run.demos:<4d} seed {run.seed:<5d} lr {run.lr:g} "
-            f"{budget}, eval {run.eval_episodes} ep x {1 + len(run.perturbations)}")
+    return (
+        f"{run.run_id}  {run.task:20s} {run.method:34s} demos {run.demos:<4d} seed {run.seed:<5d} lr {run.lr:g} "
+        f"{budget}, eval {run.eval_episodes} ep x {1 + len(run.perturbations)}"
+    )
 
 
 def plan(grid: Grid, out: Path) -> tuple[list[RunSpec], list[RunSpec]]:
@@ -173,15 +210,24 @@ def plan(grid: Grid, out: Path) -> tuple[list[RunSpec], list[RunSpec]]:
     return runs, [r for r in runs if r.run_id not in done]
 
 
-def run_grid(grid: Grid, out: Path, workers: int = 1, device: str = "cpu", dry_run: bool = False,
-             loader_workers: int = 0, echo=print) -> int:
+def run_grid(
+    grid: Grid,
+    out: Path,
+    workers: int = 1,
+    device: str = "cpu",
+    dry_run: bool = False,
+    loader_workers: int = 0,
+    echo=print,
+) -> int:
     """Run every unfinished run of `grid`; returns the number of failed runs. `loader_workers` is LeRobot's
     DataLoader `num_workers` per run (0 is fastest on a 2-core CPU, where a worker competes with training)."""
     out = Path(out)
     runs, todo = plan(grid, out)
     estimate = sum(estimate_seconds(r) for r in todo)
-    echo(f"grid {grid.name}: {len(runs)} runs, {len(runs) - len(todo)} already finished, {len(todo)} to run "
-         f"(rough 2-core CPU estimate {estimate / 60:.0f} min with 1 worker); results -> {out / RESULTS_FILE}")
+    echo(
+        f"grid {grid.name}: {len(runs)} runs, {len(runs) - len(todo)} already finished, {len(todo)} to run "
+        f"(rough 2-core CPU estimate {estimate / 60:.0f} min with 1 worker); results -> {out / RESULTS_FILE}"
+    )
     for run in todo:
         echo("  " + describe(run))
     if dry_run or not todo:
@@ -191,10 +237,13 @@ def run_grid(grid: Grid, out: Path, workers: int = 1, device: str = "cpu", dry_r
     started = time.time()
     jobs = [(run, str(datasets[run.demo_key])) for run in todo]
     if workers <= 1:
+
         def sequential():
             for index, (run, dataset) in enumerate(jobs, start=1):
-                echo(f"[{index}/{len(jobs)}] training {run.run_id} {run.method} on {run.task} "
-                     f"(log: {out / 'runs' / run.run_id / 'train.log'})")
+                echo(
+                    f"[{index}/{len(jobs)}] training {run.run_id} {run.method} on {run.task} "
+                    f"(log: {out / 'runs' / run.run_id / 'train.log'})"
+                )
                 yield run, _attempt(run, dataset, out, device, loader_workers)
 
         failures = _collect(sequential(), out, len(jobs), started, echo)
@@ -210,7 +259,7 @@ def run_grid(grid: Grid, out: Path, workers: int = 1, device: str = "cpu", dry_r
 def _attempt(run: RunSpec, dataset: str, out: Path, device: str, loader_workers: int) -> dict | str:
     try:
         return execute_run(run.config(), dataset, str(out), device, loader_workers)
-    except Exception as err:  # noqa: BLE001  (one failed run must not stop the others; reported below)
+    except Exception as err:
         return f"{type(err).__name__}: {err}"
 
 
@@ -225,7 +274,9 @@ def _collect(outcomes, out: Path, total: int, started: float, echo) -> int:
         append_result(out / RESULTS_FILE, outcome)
         nominal = outcome["evaluations"]["none"]
         lo, hi = nominal["ci95"]
-        echo(f"[{index}/{total}] {run.run_id} {run.method} on {run.task}: success {nominal['successes']}/"
-             f"{nominal['episodes']} = {nominal['success_rate']:.0%} (95% CI {lo:.0%}-{hi:.0%}); train "
-             f"{outcome['timings']['train_s']:.0f} s, eval {outcome['timings']['eval_s']:.0f} s; {elapsed:.1f} min")
+        echo(
+            f"[{index}/{total}] {run.run_id} {run.method} on {run.task}: success {nominal['successes']}/"
+            f"{nominal['episodes']} = {nominal['success_rate']:.0%} (95% CI {lo:.0%}-{hi:.0%}); train "
+            f"{outcome['timings']['train_s']:.0f} s, eval {outcome['timings']['eval_s']:.0f} s; {elapsed:.1f} min"
+        )
     return failures

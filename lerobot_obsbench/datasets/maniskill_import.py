@@ -31,13 +31,19 @@ def read_trajectory_metadata(h5_path: Path) -> dict:
     return meta
 
 
-def import_trajectories(h5_path: Path, out: Path, image_size: int = 128, cameras=("base_camera",),
-                        max_episodes: int | None = None, only_success: bool = True,
-                        repo_id: str | None = None) -> dict:
+def import_trajectories(
+    h5_path: Path,
+    out: Path,
+    image_size: int = 128,
+    cameras=("base_camera",),
+    max_episodes: int | None = None,
+    only_success: bool = True,
+    repo_id: str | None = None,
+) -> dict:
     import h5py
+    from mani_skill.trajectory.dataset import load_h5_data
     from mani_skill.trajectory.utils import dict_to_list_of_dicts
     from mani_skill.utils import common
-    from mani_skill.trajectory.dataset import load_h5_data
 
     from lerobot_obsbench.envs.maniskill import ObsBenchEnv
 
@@ -75,8 +81,14 @@ def import_trajectories(h5_path: Path, out: Path, image_size: int = 128, cameras
             save_episode_file(target, {k: np.stack([fr[k] for fr in frames]) for k in frames[0]})
     env.close()
     assemble(out, files, task, repo_id=repo_id or f"local/obsbench_{task}_imported")
-    info = {"task": task, "source": str(h5_path), "episode_ids": [ep["episode_id"] for ep in episodes],
-            "control_mode": control_mode, "image_size": image_size, "cameras": list(cameras)}
+    info = {
+        "task": task,
+        "source": str(h5_path),
+        "episode_ids": [ep["episode_id"] for ep in episodes],
+        "control_mode": control_mode,
+        "image_size": image_size,
+        "cameras": list(cameras),
+    }
     (out / "obsbench_import.json").write_text(json.dumps(info, indent=2) + "\n")
     shutil.rmtree(staging)
     return info

@@ -89,8 +89,9 @@ def assemble(out: Path, episode_files: list[Path], task: str, repo_id: str, fps:
             shutil.rmtree(path)
     tmp_root = out / ".assembling"
     episodes = [dict(np.load(f)) for f in episode_files]
-    ds = LeRobotDataset.create(repo_id=repo_id, fps=fps, features=_features(episodes[0]), root=tmp_root,
-                               robot_type="panda", use_videos=True)
+    ds = LeRobotDataset.create(
+        repo_id=repo_id, fps=fps, features=_features(episodes[0]), root=tmp_root, robot_type="panda", use_videos=True
+    )
     description = task_spec(task).description
     for ep in tqdm(episodes, desc="writing dataset", unit="ep"):
         for t in range(len(ep[ACTION_KEY])):
@@ -102,9 +103,17 @@ def assemble(out: Path, episode_files: list[Path], task: str, repo_id: str, fps:
     tmp_root.rmdir()
 
 
-def record_demos(task: str, episodes: int, out: Path, image_size: int = 128, cameras=("base_camera",),
-                 seed_start: int = DEMO_SEED_START, max_attempts: int | None = None,
-                 repo_id: str | None = None, keep_staging: bool = False) -> dict:
+def record_demos(
+    task: str,
+    episodes: int,
+    out: Path,
+    image_size: int = 128,
+    cameras=("base_camera",),
+    seed_start: int = DEMO_SEED_START,
+    max_attempts: int | None = None,
+    repo_id: str | None = None,
+    keep_staging: bool = False,
+) -> dict:
     """Record `episodes` successful expert demonstrations of `task` into `out` (resumable)."""
     from lerobot_obsbench.envs.maniskill import ObsBenchEnv
 
@@ -120,8 +129,10 @@ def record_demos(task: str, episodes: int, out: Path, image_size: int = 128, cam
         if info["task"] == task and len(info["seeds"]) == episodes:
             print(f"{out}: {episodes} {task} demonstrations already recorded")
             return info
-        raise FileExistsError(f"{out} already holds a dataset ({info['task']}, {len(info['seeds'])} episodes); "
-                              "choose another --out or delete it.")
+        raise FileExistsError(
+            f"{out} already holds a dataset ({info['task']}, {len(info['seeds'])} episodes); "
+            "choose another --out or delete it."
+        )
     staging = out / STAGING
     staging.mkdir(parents=True, exist_ok=True)
     attempted = _attempted(staging)
@@ -147,8 +158,10 @@ def record_demos(task: str, episodes: int, out: Path, image_size: int = 128, cam
                 log.write(json.dumps({"seed": seed, "success": ok, "steps": len(frames.get("action", []))}) + "\n")
             attempted[seed] = ok
             tried = len(attempted)
-            bar.set_postfix(success=f"{len([s for s in attempted.values() if s])}/{tried}",
-                            ep_per_min=f"{60 * bar.n / max(time.time() - start, 1e-6):.1f}")
+            bar.set_postfix(
+                success=f"{len([s for s in attempted.values() if s])}/{tried}",
+                ep_per_min=f"{60 * bar.n / max(time.time() - start, 1e-6):.1f}",
+            )
             seed += 1
     finally:
         bar.close()
@@ -156,8 +169,15 @@ def record_demos(task: str, episodes: int, out: Path, image_size: int = 128, cam
     seeds = sorted(successes)[:episodes]
     assemble(out, [staging / f"seed_{s}.npz" for s in seeds], task, repo_id=repo_id or f"local/obsbench_{task}")
     tried = len(attempted)
-    info = {"task": task, "seeds": seeds, "expert_success_rate": round(len(successes) / tried, 4),
-            "attempts": tried, "image_size": image_size, "cameras": list(cameras), "seed_start": seed_start}
+    info = {
+        "task": task,
+        "seeds": seeds,
+        "expert_success_rate": round(len(successes) / tried, 4),
+        "attempts": tried,
+        "image_size": image_size,
+        "cameras": list(cameras),
+        "seed_start": seed_start,
+    }
     sidecar.write_text(json.dumps(info, indent=2) + "\n")
     if not keep_staging:
         shutil.rmtree(staging)

@@ -74,8 +74,16 @@ class PointTokenEncoder(nn.Module):
     """A per-point backbone + the point tokenizer: ACT tokens (B, S, dim) with 3D sine positions, or one
     global feature (B, width) for Diffusion Policy."""
 
-    def __init__(self, backbone: nn.Module, in_channels: int, output: str, dim: int = 512, sampling: str = "post",
-                 num_tokens: int = 2048, knn: int = 16):
+    def __init__(
+        self,
+        backbone: nn.Module,
+        in_channels: int,
+        output: str,
+        dim: int = 512,
+        sampling: str = "post",
+        num_tokens: int = 2048,
+        knn: int = 16,
+    ):
         super().__init__()
         check_choice("sampling", sampling, SAMPLING)
         if num_tokens < 1 or knn < 1:
@@ -90,7 +98,9 @@ class PointTokenEncoder(nn.Module):
             self.offset_proj = nn.Linear(3, dim, bias=False)
             self.group_act = nn.Sequential(*norm_relu(dim))
         if sampling == "pre":
-            self.group_proj = nn.Sequential(nn.Linear(3 + in_channels, in_channels, bias=False), *norm_relu(in_channels))
+            self.group_proj = nn.Sequential(
+                nn.Linear(3 + in_channels, in_channels, bias=False), *norm_relu(in_channels)
+            )
             if output == "tokens":
                 self.tokenizer = nn.Linear(width, dim)
         self.pos_dim = dim

@@ -39,11 +39,23 @@ class PointNetBackbone(nn.Module):
         return masked_apply(self.mlp, features, mask)
 
 
-@register_encoder("pointnet", ("pointcloud",), "PointNet: 5 kernel-1 convs 64-64-64-128-512 + BN (the paper's "
-                  "PointNet; 84.0k parameters, see README)", describe_point_tokens(POINTNET_WIDTHS[-1]),
-                  default_for=("pointcloud",))
-def build_pointnet(obs_space: str, output: str, dim: int, point_features: str = "rgb+xyz", sampling: str = "post",
-                   num_tokens: int = 2048, knn: int = 16) -> PointTokenEncoder:
+@register_encoder(
+    "pointnet",
+    ("pointcloud",),
+    "PointNet: 5 kernel-1 convs 64-64-64-128-512 + BN (the paper's PointNet; 84.0k parameters, see README)",
+    describe_point_tokens(POINTNET_WIDTHS[-1]),
+    default_for=("pointcloud",),
+)
+def build_pointnet(
+    obs_space: str,
+    output: str,
+    dim: int,
+    point_features: str = "rgb+xyz",
+    sampling: str = "post",
+    num_tokens: int = 2048,
+    knn: int = 16,
+) -> PointTokenEncoder:
     channels = input_channels(obs_space, point_features)
-    return PointTokenEncoder(PointNetBackbone(channels), channels, output, dim=dim, sampling=sampling,
-                             num_tokens=num_tokens, knn=knn)
+    return PointTokenEncoder(
+        PointNetBackbone(channels), channels, output, dim=dim, sampling=sampling, num_tokens=num_tokens, knn=knn
+    )

@@ -33,14 +33,15 @@ def resolve_checkpoint(pretrained: str) -> Path:
     if path.is_file():
         return path
     if not HUB_ID.match(pretrained):
-        raise CheckpointError(f"pretrained={pretrained!r} is not a file; give a local checkpoint or a Hub file as "
-                              "ORG/REPO:FILENAME")
+        raise CheckpointError(
+            f"pretrained={pretrained!r} is not a file; give a local checkpoint or a Hub file as ORG/REPO:FILENAME"
+        )
     from huggingface_hub import hf_hub_download
 
     repo_id, filename = pretrained.split(":", 1)
     try:
         return Path(hf_hub_download(repo_id, filename, etag_timeout=10))
-    except Exception as err:  # noqa: BLE001  (offline, unknown repo, missing file: all end here)
+    except Exception as err:
         raise CheckpointError(
             f"could not fetch {filename!r} from the Hub repo {repo_id!r} ({type(err).__name__}: {err}). On an offline "
             "machine, download it elsewhere and pass the local file path as pretrained=."
@@ -52,7 +53,7 @@ def read_state_dict(pretrained: str, wrappers=("state_dict", "model", "r3m", "mo
     path = resolve_checkpoint(pretrained)
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as err:  # noqa: BLE001
+    except Exception as err:
         raise CheckpointError(f"{path} is not a readable PyTorch checkpoint ({err})") from None
     while isinstance(state, dict) and not any(isinstance(v, Tensor) for v in state.values()):
         key = next((k for k in wrappers if k in state), None)
@@ -63,7 +64,7 @@ def read_state_dict(pretrained: str, wrappers=("state_dict", "model", "r3m", "mo
 
 
 def strip_prefix(state: dict[str, Tensor], prefix: str) -> dict[str, Tensor]:
-    return {k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)}
+    return {k[len(prefix) :]: v for k, v in state.items() if k.startswith(prefix)}
 
 
 def load_matching(module: nn.Module, state: dict[str, Tensor], source: str, allow_missing=()) -> dict:
@@ -71,20 +72,36 @@ def load_matching(module: nn.Module, state: dict[str, Tensor], source: str, allo
     right shape. Returns {'loaded', 'ignored'} counts and logs them."""
     own = module.state_dict()
     missing = [k for k in own if k not in state and not k.startswith(tuple(allow_missing))]
-    wrong = [f"{k}: checkpoint {tuple(state[k].shape)} vs model {tuple(own[k].shape)}"
-             for k in own if k in state and state[k].shape != own[k].shape]
+    wrong = [
+        f"{k}: checkpoint {tuple(state[k].shape)} vs model {tuple(own[k].shape)}"
+        for k in own
+        if k in state and state[k].shape != own[k].shape
+    ]
     if wrong or missing:
         raise CheckpointError(
             f"{source} does not fit this encoder (a checkpoint of another architecture?): "
-            + (f"shape mismatches {wrong[:5]}" + (f" (+{len(wrong) - 5} more)" if len(wrong) > 5 else "") if wrong else "")
+            + (
+                f"shape mismatches {wrong[:5]}" + (f" (+{len(wrong) - 5} more)" if len(wrong) > 5 else "")
+                if wrong
+                else ""
+            )
             + ("; " if wrong and missing else "")
-            + (f"missing keys {missing[:8]}" + (f" (+{len(missing) - 8} more)" if len(missing) > 8 else "") if missing else "")
+            + (
+                f"missing keys {missing[:8]}" + (f" (+{len(missing) - 8} more)" if len(missing) > 8 else "")
+                if missing
+                else ""
+            )
         )
     used = {k: v for k, v in state.items() if k in own}
     module.load_state_dict(used, strict=False)
     report = {"loaded": len(used), "ignored": sorted(k for k in state if k not in own)}
-    logger.info("%s: loaded %d tensors, ignored %d checkpoint keys%s", source, len(used), len(report["ignored"]),
-                f" (e.g. {report['ignored'][:3]})" if report["ignored"] else "")
+    logger.info(
+        "%s: loaded %d tensors, ignored %d checkpoint keys%s",
+        source,
+        len(used),
+        len(report["ignored"]),
+        f" (e.g. {report['ignored'][:3]})" if report["ignored"] else "",
+    )
     return report
 
 

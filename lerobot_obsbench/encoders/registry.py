@@ -62,8 +62,14 @@ class EncoderInfo:
 _REGISTRY: dict[str, EncoderInfo] = {}
 
 
-def register_encoder(name: str, spaces: tuple[str, ...], summary: str, describe: Callable[..., EncoderOutput],
-                     pretrained: str = "", default_for: tuple[str, ...] = ()):
+def register_encoder(
+    name: str,
+    spaces: tuple[str, ...],
+    summary: str,
+    describe: Callable[..., EncoderOutput],
+    pretrained: str = "",
+    default_for: tuple[str, ...] = (),
+):
     """Decorator registering `build(obs_space, output, dim, *, <options>) -> nn.Module` under `name`.
 
     `describe` states the output for a configuration before building; `pretrained` names the weights the
@@ -89,8 +95,9 @@ def register_encoder(name: str, spaces: tuple[str, ...], summary: str, describe:
                 raise ValueError(f"encoder {name!r}: {taken[0]!r} is already the default encoder of {space!r}")
         options = tuple(params)[len(BUILD_ARGS) :]
         defaults = {k: params[k].default for k in options if params[k].default is not inspect.Parameter.empty}
-        _REGISTRY[name] = EncoderInfo(name, tuple(spaces), summary, build, describe, options, defaults, pretrained,
-                                      tuple(default_for))
+        _REGISTRY[name] = EncoderInfo(
+            name, tuple(spaces), summary, build, describe, options, defaults, pretrained, tuple(default_for)
+        )
         return build
 
     return decorator
@@ -150,8 +157,14 @@ def make_encoder(name: str, obs_space: str, output: str = "tokens", dim: int = 5
     return _checked(name, obs_space, output, options).build(obs_space, output, dim, **options)
 
 
-def encoder_output(name: str, obs_space: str, output: str = "tokens", dim: int = 512,
-                   context: EncoderContext = EncoderContext(), **options) -> EncoderOutput:
+def encoder_output(
+    name: str,
+    obs_space: str,
+    output: str = "tokens",
+    dim: int = 512,
+    context: EncoderContext = EncoderContext(),
+    **options,
+) -> EncoderOutput:
     """What `make_encoder(name, obs_space, output, dim, **options)` will output, without building it."""
     info = _checked(name, obs_space, output, options)
     return info.describe(obs_space, output, dim, context, {**info.defaults, **options})

@@ -88,8 +88,18 @@ def _builder(arch: str):
     return build
 
 
-register_encoder("resnet18", IMAGE_SPACES, "torchvision ResNet-18 (CPU presets); layer4 map -> tokens / pooled",
-                 _describer("resnet18"), pretrained="imagenet, or a torchvision-layout file")(_builder("resnet18"))
-register_encoder("resnet50", IMAGE_SPACES, "torchvision ResNet-50 (paper, 23.5M); layer4 map -> tokens / pooled",
-                 _describer("resnet50"), pretrained="imagenet, a torchvision-layout file, or R3M (module.convnet.*)",
-                 default_for=IMAGE_SPACES)(_builder("resnet50"))
+register_encoder(
+    "resnet18",
+    IMAGE_SPACES,
+    "torchvision ResNet-18 (CPU presets); layer4 map -> tokens / pooled",
+    _describer("resnet18"),
+    pretrained="imagenet, or a torchvision-layout file",
+)(_builder("resnet18"))
+register_encoder(
+    "resnet50",
+    IMAGE_SPACES,
+    "torchvision ResNet-50 (paper, 23.5M); layer4 map -> tokens / pooled",
+    _describer("resnet50"),
+    pretrained="imagenet, a torchvision-layout file, or R3M (module.convnet.*)",
+    default_for=IMAGE_SPACES,
+)(_builder("resnet50"))

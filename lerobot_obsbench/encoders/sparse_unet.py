@@ -33,8 +33,9 @@ STEM_CHANNELS = 32
 # every coordinate at each of the 4 stride-2 levels: a margin of 2**4 = 16 cells beyond the largest coordinate
 # is enough. Pointcept (whose layout PonderV2's weights use) adds 96; kept for parity, it changes no output.
 GRID_MARGIN = 96
-SPCONV_HELP = ("spunet34 needs spconv: `pip install spconv==2.3.8` (CPU wheel) or `pip install spconv-cu126` "
-               "(CUDA 12.x GPUs)")
+SPCONV_HELP = (
+    "spunet34 needs spconv: `pip install spconv==2.3.8` (CPU wheel) or `pip install spconv-cu126` (CUDA 12.x GPUs)"
+)
 
 
 def _current_stream() -> int:
@@ -111,8 +112,10 @@ class SpUNet(nn.Module):
         super().__init__()
         self.voxel_size = voxel_size
         self.out_channels = DECODER_CHANNELS[-1]  # = spunet34.OUT_CHANNELS
-        self.conv_input = ConvNormReLU(spconv.SubMConv3d(in_channels, STEM_CHANNELS, kernel_size=5, padding=1,
-                                                         bias=False, indice_key="stem"), STEM_CHANNELS)
+        self.conv_input = ConvNormReLU(
+            spconv.SubMConv3d(in_channels, STEM_CHANNELS, kernel_size=5, padding=1, bias=False, indice_key="stem"),
+            STEM_CHANNELS,
+        )
         self.down, self.enc, self.up, self.dec = (nn.ModuleList() for _ in range(4))
         # Decoder stage s undoes down[s]: it upsamples from the level below (the next decoder stage's output,
         # or the bottleneck for the deepest) to dec_widths[s] and merges the skip that entered down[s].
@@ -120,17 +123,38 @@ class SpUNet(nn.Module):
         up_inputs = (*dec_widths[1:], ENCODER_CHANNELS[-1])
         skips = (STEM_CHANNELS, *ENCODER_CHANNELS[:-1])
         for s, channels in enumerate(ENCODER_CHANNELS):
-            self.down.append(ConvNormReLU(spconv.SparseConv3d(
-                skips[s], channels, kernel_size=2, stride=2, bias=False, indice_key=f"spconv{s + 1}"), channels))
-            self.enc.append(spconv.SparseSequential(OrderedDict(
-                (f"block{i}", BasicBlock(channels, channels, f"subm{s + 1}"))
-                for i in range(ENCODER_BLOCKS[s]))))
+            self.down.append(
+                ConvNormReLU(
+                    spconv.SparseConv3d(
+                        skips[s], channels, kernel_size=2, stride=2, bias=False, indice_key=f"spconv{s + 1}"
+                    ),
+                    channels,
+                )
+            )
+            self.enc.append(
+                spconv.SparseSequential(
+                    OrderedDict(
+                        (f"block{i}", BasicBlock(channels, channels, f"subm{s + 1}")) for i in range(ENCODER_BLOCKS[s])
+                    )
+                )
+            )
             width = dec_widths[s]
-            self.up.append(ConvNormReLU(spconv.SparseInverseConv3d(
-                up_inputs[s], width, kernel_size=2, bias=False, indice_key=f"spconv{s + 1}"), width))
-            self.dec.append(spconv.SparseSequential(OrderedDict(
-                (f"block{i}", BasicBlock(width + skips[s] if i == 0 else width, width, f"subm{s}"))
-                for i in range(DECODER_BLOCKS[::-1][s]))))
+            self.up.append(
+                ConvNormReLU(
+                    spconv.SparseInverseConv3d(
+                        up_inputs[s], width, kernel_size=2, bias=False, indice_key=f"spconv{s + 1}"
+                    ),
+                    width,
+                )
+            )
+            self.dec.append(
+                spconv.SparseSequential(
+                    OrderedDict(
+                        (f"block{i}", BasicBlock(width + skips[s] if i == 0 else width, width, f"subm{s}"))
+                        for i in range(DECODER_BLOCKS[::-1][s])
+                    )
+                )
+            )
         self.apply(_init_weights)
 
     def voxelize(self, xyz: Tensor, mask: Tensor) -> tuple[Tensor, Tensor, Tensor]:
@@ -151,7 +175,7 @@ class SpUNet(nn.Module):
         x = spconv.SparseConvTensor(features[mask][first], indices, shape, mask.shape[0])
         x = self.conv_input(x)
         skips = [x]
-        for down, enc in zip(self.down, self.enc):
+        for down, enc in zip(self.down, self.enc, strict=True):
             x = enc(down(x))
             skips.append(x)
         x = skips.pop()

@@ -28,7 +28,7 @@ def ponderv2_to_spunet(state: dict[str, Tensor], condition: str = "ScanNet") -> 
     if condition not in PONDERV2_CONDITIONS:
         raise ValueError(f"PonderV2 condition must be one of {PONDERV2_CONDITIONS}; got {condition!r}")
     k = PONDERV2_CONDITIONS.index(condition)
-    backbone = {key[len("module.backbone."):]: v for key, v in state.items() if key.startswith("module.backbone.")}
+    backbone = {key[len("module.backbone.") :]: v for key, v in state.items() if key.startswith("module.backbone.")}
     table = state.get("module.embedding_table.weight", backbone.pop("embedding_table.weight", None))
     out = {}
     for key, value in backbone.items():
@@ -61,11 +61,24 @@ def load_ponderv2(backbone, pretrained: str, condition: str = "ScanNet") -> dict
     return load_matching(backbone, state, source)
 
 
-@register_encoder("spunet34", ("pointcloud",), "sparse-conv U-Net, PonderV2 layout (paper, 39.2M); needs spconv",
-                  describe_point_tokens(OUT_CHANNELS), pretrained="PonderV2 (module.backbone.*)")
-def build_spunet(obs_space: str, output: str, dim: int, point_features: str = "rgb+xyz", sampling: str = "post",
-                 num_tokens: int = 2048, knn: int = 16, voxel_size: float = 0.005,
-                 pretrained: str | None = None) -> PointTokenEncoder:
+@register_encoder(
+    "spunet34",
+    ("pointcloud",),
+    "sparse-conv U-Net, PonderV2 layout (paper, 39.2M); needs spconv",
+    describe_point_tokens(OUT_CHANNELS),
+    pretrained="PonderV2 (module.backbone.*)",
+)
+def build_spunet(
+    obs_space: str,
+    output: str,
+    dim: int,
+    point_features: str = "rgb+xyz",
+    sampling: str = "post",
+    num_tokens: int = 2048,
+    knn: int = 16,
+    voxel_size: float = 0.005,
+    pretrained: str | None = None,
+) -> PointTokenEncoder:
     from lerobot_obsbench.encoders.sparse_unet import SpUNet  # spconv is needed from here on only
 
     channels = input_channels(obs_space, point_features)

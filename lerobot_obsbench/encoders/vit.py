@@ -5,9 +5,10 @@ ACT gets that token per camera projected to its width (positions: a sine code of
 Policy gets the concatenated tokens of all cameras.
 
 - `vit_b`: timm's VisionTransformer, 1/3/4/6 input channels (rgb, depth, rgbd, pointmap), built for the camera
-  resolution (frames whose size is not a multiple of 16 are zero-padded, in both encoders). `pretrained=` loads a MAE-layout checkpoint such as VC-1's (`cls_token`, `pos_embed`,
-  `patch_embed.*`, `blocks.*`, `norm.*`; MAE's decoder keys are dropped): the position embedding is resampled to
-  the camera's patch grid and extra input channels start at zero.
+  resolution (frames whose size is not a multiple of 16 are zero-padded, in both encoders). `pretrained=` loads
+  a MAE-layout checkpoint such as VC-1's (`cls_token`, `pos_embed`, `patch_embed.*`, `blocks.*`, `norm.*`; MAE's
+  decoder keys are dropped): the position embedding is resampled to the camera's patch grid and extra input
+  channels start at zero.
 - `multivit_b`: rgbd only. One patch adapter per modality (rgb: 3 channels, depth: 1), each with a fixed 2-D
   sine-cosine position map interpolated to the patch grid; patch tokens of both modalities plus one learned
   global token go through 12 transformer blocks. Keys follow MultiMAE's layout (`input_adapters.{rgb,depth}.*`,
@@ -49,14 +50,29 @@ class _CameraTokens(nn.Module):
 
 
 class ViTEncoder(nn.Module):
-    def __init__(self, in_channels: int, output: str, dim: int = 512, pretrained: str | None = None,
-                 image_size: tuple[int, int] = (224, 224)):
+    def __init__(
+        self,
+        in_channels: int,
+        output: str,
+        dim: int = 512,
+        pretrained: str | None = None,
+        image_size: tuple[int, int] = (224, 224),
+    ):
         super().__init__()
         from timm.models.vision_transformer import VisionTransformer
 
-        self.vit = VisionTransformer(img_size=image_size, patch_size=PATCH, in_chans=in_channels, num_classes=0,
-                                     embed_dim=WIDTH, depth=DEPTH, num_heads=HEADS, global_pool="token",
-                                     dynamic_img_size=True, dynamic_img_pad=True)
+        self.vit = VisionTransformer(
+            img_size=image_size,
+            patch_size=PATCH,
+            in_chans=in_channels,
+            num_classes=0,
+            embed_dim=WIDTH,
+            depth=DEPTH,
+            num_heads=HEADS,
+            global_pool="token",
+            dynamic_img_size=True,
+            dynamic_img_pad=True,
+        )
         if pretrained:
             self.load_mae(pretrained)
         self.head = _CameraTokens(WIDTH, output, dim)
@@ -111,8 +127,9 @@ class MultiViTEncoder(nn.Module):
         self.global_tokens = nn.Parameter(torch.zeros(1, 1, WIDTH))
         nn.init.trunc_normal_(self.global_tokens, std=0.02)
         norm = partial(nn.LayerNorm, eps=1e-6)
-        self.encoder = nn.Sequential(*[Block(WIDTH, HEADS, mlp_ratio=4.0, qkv_bias=True, norm_layer=norm)
-                                       for _ in range(DEPTH)])
+        self.encoder = nn.Sequential(
+            *[Block(WIDTH, HEADS, mlp_ratio=4.0, qkv_bias=True, norm_layer=norm) for _ in range(DEPTH)]
+        )
         self.head = _CameraTokens(WIDTH, output, dim)
         if pretrained:
             self.load_multimae(pretrained)
@@ -125,27 +142,45 @@ class MultiViTEncoder(nn.Module):
         """rgbd images (B, n_cam, 4, H, W) -> one global token per camera (ACT tokens or DP features)."""
         x = images.flatten(0, 1)
         x = F.pad(x, (0, -x.shape[-1] % PATCH, 0, -x.shape[-2] % PATCH))  # sizes not divisible by 16: pad
-        tokens = torch.cat([self.input_adapters["rgb"](x[:, :3]), self.input_adapters["depth"](x[:, 3:4]),
-                            self.global_tokens.expand(x.shape[0], -1, -1)], dim=1)
+        tokens = torch.cat(
+            [
+                self.input_adapters["rgb"](x[:, :3]),
+                self.input_adapters["depth"](x[:, 3:4]),
+                self.global_tokens.expand(x.shape[0], -1, -1),
+            ],
+            dim=1,
+        )
         return self.head(self.encoder(tokens)[:, -1], images.shape[0])
 
 
-def describe_camera_tokens(obs_space: str, output: str, dim: int, context: EncoderContext,
-                           options: dict) -> EncoderOutput:
+def describe_camera_tokens(
+    obs_space: str, output: str, dim: int, context: EncoderContext, options: dict
+) -> EncoderOutput:
     """One token per camera (ACT), or the cameras' features concatenated (Diffusion Policy)."""
     return EncoderOutput(context.cameras, dim) if output == "tokens" else EncoderOutput(None, context.cameras * WIDTH)
 
 
-@register_encoder("vit_b", IMAGE_SPACES, "ViT-B/16 (paper, 85.8M); [CLS] token", describe_camera_tokens,
-                  pretrained="VC-1 / MAE layout")
-def build_vit(obs_space: str, output: str, dim: int, pretrained: str | None = None,
-              image_size: int | tuple[int, int] = 224) -> ViTEncoder:
+@register_encoder(
+    "vit_b",
+    IMAGE_SPACES,
+    "ViT-B/16 (paper, 85.8M); [CLS] token",
+    describe_camera_tokens,
+    pretrained="VC-1 / MAE layout",
+)
+def build_vit(
+    obs_space: str, output: str, dim: int, pretrained: str | None = None, image_size: int | tuple[int, int] = 224
+) -> ViTEncoder:
     """`image_size`: the camera frame size (height, width) or one side; the patch grid is built for it."""
     size = (image_size, image_size) if isinstance(image_size, int) else tuple(image_size)
     return ViTEncoder(input_channels(obs_space), output, dim=dim, pretrained=pretrained, image_size=size)
 
 
-@register_encoder("multivit_b", ("rgbd",), "MultiMAE-style MultiViT-B (paper, 86.1M); rgb + depth patch adapters, "
-                  "global token", describe_camera_tokens, pretrained="MultiMAE")
+@register_encoder(
+    "multivit_b",
+    ("rgbd",),
+    "MultiMAE-style MultiViT-B (paper, 86.1M); rgb + depth patch adapters, global token",
+    describe_camera_tokens,
+    pretrained="MultiMAE",
+)
 def build_multivit(obs_space: str, output: str, dim: int, pretrained: str | None = None) -> MultiViTEncoder:
     return MultiViTEncoder(output, dim=dim, pretrained=pretrained)

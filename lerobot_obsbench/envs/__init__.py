@@ -13,7 +13,11 @@ for _name, _task in TASKS.items():
     if f"obsbench/{_name}" not in gym.registry:
         # max_episode_steps here only declares the default; ObsBenchEnv passes the configured budget to
         # ManiSkill, and gym.make's TimeLimit (read by lerobot-eval as _max_episode_steps) follows the kwarg.
-        gym.register(id=f"obsbench/{_name}", entry_point="lerobot_obsbench.envs.maniskill:make_obsbench_env",
-                     kwargs={"task": _name}, max_episode_steps=_task.max_steps)
+        gym.register(
+            id=f"obsbench/{_name}",
+            entry_point="lerobot_obsbench.envs.maniskill:make_obsbench_env",
+            kwargs={"task": _name},
+            max_episode_steps=_task.max_steps,
+        )
 
 __all__ = ["TASKS", "ObsBenchEnvConfig", "TaskError", "eval_seeds", "task_spec"]

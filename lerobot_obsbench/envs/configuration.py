@@ -45,8 +45,10 @@ class ObsBenchEnvConfig(EnvConfig):
         if self.control_mode not in CONTROL_MODES:
             raise ValueError(f"control_mode must be one of {CONTROL_MODES}; got {self.control_mode!r}")
         size = (self.image_size, self.image_size, 3)
-        self.features = {"action": PolicyFeature(FeatureType.ACTION, (ACTION_DIMS[self.control_mode],)),
-                         "agent_pos": PolicyFeature(FeatureType.STATE, (STATE_DIM,))}
+        self.features = {
+            "action": PolicyFeature(FeatureType.ACTION, (ACTION_DIMS[self.control_mode],)),
+            "agent_pos": PolicyFeature(FeatureType.STATE, (STATE_DIM,)),
+        }
         self.features_map = {"action": ACTION_KEY, "agent_pos": STATE_KEY}
         for cam in self.cameras:
             self.features[f"pixels/{cam}"] = PolicyFeature(FeatureType.VISUAL, size)
@@ -67,6 +69,13 @@ class ObsBenchEnvConfig(EnvConfig):
     def gym_kwargs(self) -> dict:
         steps = self.episode_length or task_spec(self.task).max_steps
         # `max_episode_steps` is gym.make's TimeLimit (lerobot-eval reads it); `episode_length` reaches ManiSkill.
-        return {"cameras": list(self.cameras), "image_size": self.image_size, "control_mode": self.control_mode,
-                "asset_dir": self.asset_dir, "seed": self.seed, "episode_length": steps, "max_episode_steps": steps,
-                "perturbation": self.perturbation}
+        return {
+            "cameras": list(self.cameras),
+            "image_size": self.image_size,
+            "control_mode": self.control_mode,
+            "asset_dir": self.asset_dir,
+            "seed": self.seed,
+            "episode_length": steps,
+            "max_episode_steps": steps,
+            "perturbation": self.perturbation,
+        }

@@ -38,19 +38,22 @@ def check_compatible(config, env: ObsBenchEnv) -> None:
     problems = []
     missing = [c for c in getattr(config, "cameras", []) if c not in env.cameras]
     if missing:
-        problems.append(f"the policy reads cameras {config.cameras} but the env renders {env.cameras} "
-                        "(--env.cameras)")
+        problems.append(f"the policy reads cameras {config.cameras} but the env renders {env.cameras} (--env.cameras)")
     resolution = list(getattr(config, "camera_resolution", []) or [])
     if resolution and resolution != [env.image_size, env.image_size]:
-        problems.append(f"the policy was trained on {resolution[0]}x{resolution[1]} frames but the env renders "
-                        f"{env.image_size}x{env.image_size} (--env.image_size={resolution[0]})")
+        problems.append(
+            f"the policy was trained on {resolution[0]}x{resolution[1]} frames but the env renders "
+            f"{env.image_size}x{env.image_size} (--env.image_size={resolution[0]})"
+        )
     state = config.robot_state_feature
     if state is not None and state.shape[0] != STATE_DIM:
         problems.append(f"the policy expects observation.state of size {state.shape[0]}, the env gives {STATE_DIM}")
     action = config.action_feature
     if action is not None and action.shape[0] != env.action_space.shape[0]:
-        problems.append(f"the policy outputs {action.shape[0]}-D actions but the env's controller takes "
-                        f"{env.action_space.shape[0]} (--env.control_mode)")
+        problems.append(
+            f"the policy outputs {action.shape[0]}-D actions but the env's controller takes "
+            f"{env.action_space.shape[0]} (--env.control_mode)"
+        )
     if problems:
         raise SchemaError("Policy and env do not match: " + "; ".join(problems) + ".")
 
@@ -61,10 +64,19 @@ def _batched(obs):
     return np.expand_dims(obs, 0)
 
 
-def evaluate(policy_path: str | Path, task: str, episodes: int, image_size: int | None = None,
-             control_mode: str = DEFAULT_CONTROL_MODE, episode_length: int | None = None, device: str = "cpu",
-             video_dir: Path | None = None, asset_dir: str | None = None, perturbation: str | None = None,
-             progress: bool = True) -> dict:
+def evaluate(
+    policy_path: str | Path,
+    task: str,
+    episodes: int,
+    image_size: int | None = None,
+    control_mode: str = DEFAULT_CONTROL_MODE,
+    episode_length: int | None = None,
+    device: str = "cpu",
+    video_dir: Path | None = None,
+    asset_dir: str | None = None,
+    perturbation: str | None = None,
+    progress: bool = True,
+) -> dict:
     from lerobot.envs.utils import preprocess_observation
 
     spec = task_spec(task)
@@ -73,8 +85,15 @@ def evaluate(policy_path: str | Path, task: str, episodes: int, image_size: int 
     resolution = getattr(policy.config, "camera_resolution", None)
     size = image_size or (resolution[0] if resolution else 128)
     steps = episode_length or spec.max_steps
-    env = ObsBenchEnv(task, cameras=cameras, image_size=size, control_mode=control_mode, asset_dir=asset_dir,
-                      episode_length=steps, perturbation=perturbation)
+    env = ObsBenchEnv(
+        task,
+        cameras=cameras,
+        image_size=size,
+        control_mode=control_mode,
+        asset_dir=asset_dir,
+        episode_length=steps,
+        perturbation=perturbation,
+    )
     check_compatible(policy.config, env)
     records = []
     start = time.time()
@@ -86,7 +105,8 @@ def evaluate(policy_path: str | Path, task: str, episodes: int, image_size: int 
         policy.reset()
         frames = [env.render()] if video_dir else None
         length = 0
-        for length in range(1, steps + 1):
+        while length < steps:
+            length += 1
             batch = pre(preprocess_observation(_batched(obs)))
             with torch.inference_mode():
                 action = post(policy.select_action(batch))
@@ -95,8 +115,14 @@ def evaluate(policy_path: str | Path, task: str, episodes: int, image_size: int 
                 frames.append(env.render())
             if info["is_success"] or terminated or truncated:
                 break
-        records.append({"seed": seed, "success": bool(info["is_success"]), "length": length,
-                        **{k.removeprefix("sub_success/"): bool(v) for k, v in info.items() if k.startswith("sub_success/")}})
+        records.append(
+            {
+                "seed": seed,
+                "success": bool(info["is_success"]),
+                "length": length,
+                **{k.removeprefix("sub_success/"): bool(v) for k, v in info.items() if k.startswith("sub_success/")},
+            }
+        )
         if frames is not None:
             from lerobot.utils.io_utils import write_video
 
@@ -109,12 +135,20 @@ def evaluate(policy_path: str | Path, task: str, episodes: int, image_size: int 
     low, high = wilson_interval(successes, len(records))
     sub = {name: round(sum(r[name] for r in records) / len(records), 4) for name in spec.sub_success}
     return {
-        "task": task, "policy_path": str(policy_path), "obs_space": getattr(policy.config, "obs_space", None),
-        "policy_type": policy.config.type, "episodes": len(records), "seeds": [r["seed"] for r in records],
-        "successes": successes, "success_rate": round(successes / len(records), 4),
-        "ci95": [round(low, 4), round(high, 4)], "sub_success": sub,
+        "task": task,
+        "policy_path": str(policy_path),
+        "obs_space": getattr(policy.config, "obs_space", None),
+        "policy_type": policy.config.type,
+        "episodes": len(records),
+        "seeds": [r["seed"] for r in records],
+        "successes": successes,
+        "success_rate": round(successes / len(records), 4),
+        "ci95": [round(low, 4), round(high, 4)],
+        "sub_success": sub,
         "episode_length_mean": round(float(np.mean([r["length"] for r in records])), 2),
-        "per_episode": records, "image_size": size, "control_mode": control_mode,
+        "per_episode": records,
+        "image_size": size,
+        "control_mode": control_mode,
         "perturbation": perturbation or "none",
         "wall_s": round(time.time() - start, 1),
     }

@@ -103,8 +103,11 @@ class WaypointExpert:
             tcp = self.tcp_matrix()
             err = np.asarray(phase.target(self), dtype=np.float64) - tcp[:3, 3]
             # rotation error as a world-frame rotation vector (see the module docstring for the controller's sign)
-            rot_err = (np.zeros(3) if phase.rotation is None
-                       else Rotation.from_matrix(phase.rotation(self) @ tcp[:3, :3].T).as_rotvec())
+            rot_err = (
+                np.zeros(3)
+                if phase.rotation is None
+                else Rotation.from_matrix(phase.rotation(self) @ tcp[:3, :3].T).as_rotvec()
+            )
             reached = np.linalg.norm(err) < phase.tol and np.linalg.norm(rot_err) < phase.rot_tol
             if (reached and self.steps_in_phase >= phase.min_steps) or self.steps_in_phase >= phase.max_steps:
                 self.index += 1
@@ -161,7 +164,7 @@ class InsertionExpert(WaypointExpert):
         def grasp_point(s):
             return (obj(s) @ np.array([grasp_dx, 0, 0, 1]))[:3]
 
-        grasp_rotation = lambda s: top_down(grasp_yaw(s.tcp()[1], s.pose_of(getattr(s.env, s.object_name))[1], np.pi))  # noqa: E731
+        grasp_rotation = lambda s: top_down(grasp_yaw(s.tcp()[1], s.pose_of(getattr(s.env, s.object_name))[1], np.pi))
 
         def tcp_for(s, dx):
             target = s.matrix_of(s.env.goal_pose) @ pose_matrix(np.array([dx, 0, 0]), np.eye(3))
@@ -175,8 +178,23 @@ class InsertionExpert(WaypointExpert):
             Phase("descend", grasp_point, OPEN, grasp_rotation, tol=0.005),
             Phase("grasp", grasp_point, CLOSED, grasp_rotation, tol=1.0, min_steps=4, max_steps=4),
             Phase("lift", lifted, CLOSED, tol=0.02),
-            Phase("line up", lambda s: tcp_for(s, out)[:3, 3], CLOSED, lambda s: tcp_for(s, out)[:3, :3],
-                  tol=0.0015, rot_tol=0.01, max_steps=60),
-            Phase("insert", lambda s: tcp_for(s, inside)[:3, 3], CLOSED, lambda s: tcp_for(s, inside)[:3, :3],
-                  tol=0.003, rot_tol=0.01, max_steps=60, gain=0.5),
+            Phase(
+                "line up",
+                lambda s: tcp_for(s, out)[:3, 3],
+                CLOSED,
+                lambda s: tcp_for(s, out)[:3, :3],
+                tol=0.0015,
+                rot_tol=0.01,
+                max_steps=60,
+            ),
+            Phase(
+                "insert",
+                lambda s: tcp_for(s, inside)[:3, 3],
+                CLOSED,
+                lambda s: tcp_for(s, inside)[:3, :3],
+                tol=0.003,
+                rot_tol=0.01,
+                max_steps=60,
+                gain=0.5,
+            ),
         ]

@@ -65,7 +65,7 @@ def import_maniskill(asset_dir: str | None = None):
                 f"MS_ASSET_DIR={asset_dir} before starting the process instead of --env.asset_dir."
             )
         os.environ["MS_ASSET_DIR"] = asset_dir
-    import mani_skill.envs  # noqa: F401  (registers the tasks)
+    import mani_skill.envs
 
     return mani_skill.envs
 
@@ -90,10 +90,18 @@ def opencv_intrinsics(sapien_K: np.ndarray) -> np.ndarray:
 class ObsBenchEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": CONTROL_FPS}
 
-    def __init__(self, task: str, cameras=("base_camera",), image_size: int = 128,
-                 control_mode: str = DEFAULT_CONTROL_MODE, asset_dir: str | None = None, seed: int | None = None,
-                 episode_length: int | None = None, render_mode: str | None = "rgb_array",
-                 perturbation: str | None = None):
+    def __init__(
+        self,
+        task: str,
+        cameras=("base_camera",),
+        image_size: int = 128,
+        control_mode: str = DEFAULT_CONTROL_MODE,
+        asset_dir: str | None = None,
+        seed: int | None = None,
+        episode_length: int | None = None,
+        render_mode: str | None = "rgb_array",
+        perturbation: str | None = None,
+    ):
         spec = task_spec(task)
         if control_mode not in CONTROL_MODES:
             raise ValueError(f"control_mode must be one of {CONTROL_MODES}; got {control_mode!r}")
@@ -133,11 +141,13 @@ class ObsBenchEnv(gym.Env):
         spaces = {
             "pixels": gym.spaces.Dict({c: gym.spaces.Box(0, 255, (*size, 3), np.uint8) for c in self.cameras}),
             "agent_pos": gym.spaces.Box(-np.inf, np.inf, (STATE_DIM,), np.float32),
-            "robot_state": gym.spaces.Dict({
-                **{f"depth.{c}": gym.spaces.Box(0, 65535, (*size, 1), np.uint16) for c in self.cameras},
-                **{f"intrinsics.{c}": gym.spaces.Box(-np.inf, np.inf, (3, 3), np.float32) for c in self.cameras},
-                **{f"cam2world.{c}": gym.spaces.Box(-np.inf, np.inf, (4, 4), np.float32) for c in self.cameras},
-            }),
+            "robot_state": gym.spaces.Dict(
+                {
+                    **{f"depth.{c}": gym.spaces.Box(0, 65535, (*size, 1), np.uint16) for c in self.cameras},
+                    **{f"intrinsics.{c}": gym.spaces.Box(-np.inf, np.inf, (3, 3), np.float32) for c in self.cameras},
+                    **{f"cam2world.{c}": gym.spaces.Box(-np.inf, np.inf, (4, 4), np.float32) for c in self.cameras},
+                }
+            ),
         }
         if goal_dim:
             spaces["environment_state"] = gym.spaces.Box(-np.inf, np.inf, (goal_dim,), np.float32)
@@ -146,8 +156,15 @@ class ObsBenchEnv(gym.Env):
 
     def _make(self, task: str, control_mode: str, sensor_configs: dict, max_steps: int) -> dict:
         try:
-            self._env = gym.make(task, obs_mode="rgb+depth", control_mode=control_mode, render_mode="rgb_array",
-                                 sensor_configs=sensor_configs, num_envs=1, max_episode_steps=max_steps)
+            self._env = gym.make(
+                task,
+                obs_mode="rgb+depth",
+                control_mode=control_mode,
+                render_mode="rgb_array",
+                sensor_configs=sensor_configs,
+                num_envs=1,
+                max_episode_steps=max_steps,
+            )
             obs, _ = self._env.reset(seed=0)
         except RuntimeError as err:
             if any(word in str(err).lower() for word in ("vulkan", "vk::", "render")):
@@ -180,7 +197,8 @@ class ObsBenchEnv(gym.Env):
         success = bool(first(info["success"])[0]) if "success" in info else False
         for name in self.spec_.sub_success:
             self._milestones[name] = self._milestones.get(name, False) or self.spec_.milestone(
-                name, self.unwrapped_ms, info, success)
+                name, self.unwrapped_ms, info, success
+            )
         return {"is_success": success, **{f"sub_success/{k}": v for k, v in self._milestones.items()}}
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -193,8 +211,13 @@ class ObsBenchEnv(gym.Env):
 
     def step(self, action):
         obs, reward, terminated, truncated, info = self._env.step(np.asarray(action, dtype=np.float32))
-        return (self.to_env_observation(self.schema_frame(obs)), float(first(reward)[0]), bool(first(terminated)[0]),
-                bool(first(truncated)[0]), self._info(info))
+        return (
+            self.to_env_observation(self.schema_frame(obs)),
+            float(first(reward)[0]),
+            bool(first(terminated)[0]),
+            bool(first(truncated)[0]),
+            self._info(info),
+        )
 
     def raw_observation(self) -> dict:
         """The current ManiSkill observation (batch of 1), e.g. to record a frame after reset/step."""

@@ -47,8 +47,10 @@ def parse_perturbation(text: str) -> Perturbation | None:
         return None
     kind, _, raw = str(text).partition(":")
     if kind not in KINDS or not raw:
-        raise ValueError(f"unknown perturbation {text!r}; write one of camera_yaw:DEG, camera_pitch:DEG, light:I, "
-                         "background:R,G,B, noise:SPP (or none)")
+        raise ValueError(
+            f"unknown perturbation {text!r}; write one of camera_yaw:DEG, camera_pitch:DEG, light:I, "
+            "background:R,G,B, noise:SPP (or none)"
+        )
     try:
         value = tuple(float(v) for v in raw.split(","))
     except ValueError:
@@ -102,7 +104,7 @@ def capture_look_at(ms_env) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     configs = configs if isinstance(configs, (list, tuple)) else [configs]
     if len(calls) != len(configs):
         raise ValueError(f"cannot find the look-at points of {type(ms_env).__name__}'s cameras")
-    return {config.uid: call for config, call in zip(configs, calls)}
+    return {config.uid: call for config, call in zip(configs, calls, strict=True)}
 
 
 def camera_overrides(ms_env, cameras, perturbation: Perturbation) -> dict:
@@ -112,8 +114,10 @@ def camera_overrides(ms_env, cameras, perturbation: Perturbation) -> dict:
     yaw = perturbation.scalar if perturbation.kind == "camera_yaw" else 0.0
     pitch = perturbation.scalar if perturbation.kind == "camera_pitch" else 0.0
     looks = capture_look_at(ms_env)
-    return {cam: {"pose": sapien_utils.look_at(orbit_eye(*looks[cam], yaw, pitch).tolist(), looks[cam][1].tolist())}
-            for cam in cameras}
+    return {
+        cam: {"pose": sapien_utils.look_at(orbit_eye(*looks[cam], yaw, pitch).tolist(), looks[cam][1].tolist())}
+        for cam in cameras
+    }
 
 
 def apply_scene_perturbation(ms_env, perturbation: Perturbation) -> None:
@@ -130,7 +134,9 @@ def apply_scene_perturbation(ms_env, perturbation: Perturbation) -> None:
                         comp.color = (np.asarray(comp.color) * factor).tolist()
         elif perturbation.kind == "background":
             surfaces = [getattr(ms_env, "table_scene", None)]
-            actors = [a for s in surfaces if s is not None for a in (getattr(s, "table", None), getattr(s, "ground", None))]
+            actors = [
+                a for s in surfaces if s is not None for a in (getattr(s, "table", None), getattr(s, "ground", None))
+            ]
             if not any(a is not None for a in actors):
                 raise ValueError(f"{type(ms_env).__name__} has no table scene whose colour could change")
             # A flat texture of the colour: the renderer's material update path ignores base_color alone.

@@ -70,7 +70,8 @@ class Task:
     def make_expert(self, env):
         if self.expert is None:
             raise NotImplementedError(
-                f"No scripted expert for {self.name} yet (experts: {', '.join(n for n, t in TASKS.items() if t.expert)}). "
+                f"No scripted expert for {self.name} yet (experts: "
+                f"{', '.join(n for n, t in TASKS.items() if t.expert)}). "
                 "Convert official ManiSkill demonstrations instead: obsbench import-h5 --h5 FILE.h5 --out DIR."
             )
         return self.expert(env)
@@ -82,7 +83,9 @@ TASKS: dict[str, Task] = {}
 def register_task(cls: type[Task]) -> type[Task]:
     """Class decorator adding a task to TASKS (a name registered twice is an error)."""
     if cls.name in TASKS:
-        raise ValueError(f"task {cls.name!r} is registered twice ({type(TASKS[cls.name]).__module__}, {cls.__module__})")
+        raise ValueError(
+            f"task {cls.name!r} is registered twice ({type(TASKS[cls.name]).__module__}, {cls.__module__})"
+        )
     if cls.sub_success and "grasp" in cls.sub_success and cls.grasped is None:
         raise ValueError(f"task {cls.name!r} reports a grasp milestone but names no grasped object")
     TASKS[cls.name] = cls()
@@ -101,8 +104,11 @@ def missing_assets(spec: Task) -> list[str]:
         return []
     from mani_skill.utils import assets
 
-    ids = (assets.expand_data_group_into_individual_data_source_ids(spec.asset_group)
-           if spec.asset_group in assets.DATA_GROUPS else [spec.asset_group])
+    ids = (
+        assets.expand_data_group_into_individual_data_source_ids(spec.asset_group)
+        if spec.asset_group in assets.DATA_GROUPS
+        else [spec.asset_group]
+    )
     return [i for i in ids if not assets.is_data_source_downloaded(i)]
 
 

@@ -101,12 +101,19 @@ class ObservationConfig:
         self.resolve_observation_features()
 
     def get_optimizer_preset(self) -> AdamWConfig:
-        return AdamWConfig(lr=self.optimizer_lr, betas=tuple(self.optimizer_betas), eps=self.optimizer_eps,
-                           weight_decay=self.optimizer_weight_decay)
+        return AdamWConfig(
+            lr=self.optimizer_lr,
+            betas=tuple(self.optimizer_betas),
+            eps=self.optimizer_eps,
+            weight_decay=self.optimizer_weight_decay,
+        )
 
     def get_scheduler_preset(self) -> OneCycleSchedulerConfig:
-        return OneCycleSchedulerConfig(pct_start=self.scheduler_pct_start, div_factor=self.scheduler_div_factor,
-                                       final_div_factor=self.scheduler_final_div_factor)
+        return OneCycleSchedulerConfig(
+            pct_start=self.scheduler_pct_start,
+            div_factor=self.scheduler_div_factor,
+            final_div_factor=self.scheduler_final_div_factor,
+        )
 
     @classmethod
     def field_default(cls, name: str):
@@ -137,27 +144,36 @@ class ObservationConfig:
         info = encoder_info(self.encoder)
         if self.pretrained and not info.pretrained:
             with_weights = [n for n in available_encoders(self.obs_space) if encoder_info(n).pretrained]
-            raise ValueError(f"encoder {self.encoder!r} has no pretrained weights (pretrained={self.pretrained!r}); "
-                             f"encoders for {self.obs_space!r} that load weights: {', '.join(with_weights) or 'none'}")
+            raise ValueError(
+                f"encoder {self.encoder!r} has no pretrained weights (pretrained={self.pretrained!r}); "
+                f"encoders for {self.obs_space!r} that load weights: {', '.join(with_weights) or 'none'}"
+            )
         for name in ENCODER_FIELDS:
             if name in info.options or not self._non_default(name):
                 continue
             value, default = getattr(self, name), self.field_default(name)
             if self.obs_space not in POINT_SPACES:
-                raise ValueError(f"{name}={value!r} is a point-cloud design choice; obs_space={self.obs_space!r} has "
-                                 f"none (use obs_space='pointcloud' or leave {name}={default!r})")
-            raise ValueError(f"{name}={value!r} is not an option of encoder {self.encoder!r} (it takes "
-                             f"{', '.join(info.options)}); leave {name}={default!r}")
+                raise ValueError(
+                    f"{name}={value!r} is a point-cloud design choice; obs_space={self.obs_space!r} has "
+                    f"none (use obs_space='pointcloud' or leave {name}={default!r})"
+                )
+            raise ValueError(
+                f"{name}={value!r} is not an option of encoder {self.encoder!r} (it takes "
+                f"{', '.join(info.options)}); leave {name}={default!r}"
+            )
         if self.frame != "world" and self.obs_space not in ("pointcloud", "pointmap"):
-            raise ValueError(f"frame={self.frame!r} changes point coordinates; obs_space={self.obs_space!r} has none "
-                             "(use pointcloud or pointmap, or leave frame='world')")
+            raise ValueError(
+                f"frame={self.frame!r} changes point coordinates; obs_space={self.obs_space!r} has none "
+                "(use pointcloud or pointmap, or leave frame='world')"
+            )
 
     def check_replaced_fields(self) -> None:
         """LeRobot fields this policy does not use: refuse a value the user set, naming what to use instead."""
         for name, instead in self.REPLACED_FIELDS.items():
             if self._non_default(name):
-                raise ValueError(f"{self.type}: {name}={getattr(self, name)!r} has no effect in this plugin's "
-                                 f"policies; {instead}")
+                raise ValueError(
+                    f"{self.type}: {name}={getattr(self, name)!r} has no effect in this plugin's policies; {instead}"
+                )
 
     def resolve_observation_features(self) -> None:
         """Check the dataset features against the space, fix `cameras`, and take the sensor keys out of

@@ -47,13 +47,19 @@ class ObservationEncoder(nn.Module):
     def __init__(self, config, output: str, dim: int, dataset_stats: dict | None = None):
         super().__init__()
         self.adapter = ObservationAdapter(
-            config.obs_space, config.cameras, frame=config.frame, point_features=config.point_features,
-            workspace=tuple(config.workspace), voxel_size=config.voxel_size, depth_clip=tuple(config.depth_clip),
+            config.obs_space,
+            config.cameras,
+            frame=config.frame,
+            point_features=config.point_features,
+            workspace=tuple(config.workspace),
+            voxel_size=config.voxel_size,
+            depth_clip=tuple(config.depth_clip),
         )
         options = config.encoder_options()
         self.encoder = make_encoder(config.encoder, config.obs_space, output=output, dim=dim, **options)
-        self.out_dim = encoder_output(config.encoder, config.obs_space, output=output, dim=dim,
-                                      context=config.encoder_context(), **options).width
+        self.out_dim = encoder_output(
+            config.encoder, config.obs_space, output=output, dim=dim, context=config.encoder_context(), **options
+        ).width
         mode = config.normalization_mapping.get(FeatureType.STATE.value, NormalizationMode.IDENTITY)
         stats = (dataset_stats or {}).get(STATE_KEY)
         self.state = StateDenormalizer(config.input_features.get(STATE_KEY), mode, stats)

@@ -22,7 +22,12 @@ class OneCycleSchedulerConfig(LRSchedulerConfig):
     final_div_factor: float = 1000.0
 
     def build(self, optimizer: Optimizer, num_training_steps: int) -> LRScheduler:
-        return OneCycleLR(optimizer, max_lr=[g["lr"] for g in optimizer.param_groups],
-                          total_steps=max(num_training_steps, 2), pct_start=self.pct_start,
-                          anneal_strategy=self.anneal_strategy, div_factor=self.div_factor,
-                          final_div_factor=self.final_div_factor)
+        return OneCycleLR(
+            optimizer,
+            max_lr=[g["lr"] for g in optimizer.param_groups],
+            total_steps=max(num_training_steps, 2),
+            pct_start=self.pct_start,
+            anneal_strategy=self.anneal_strategy,
+            div_factor=self.div_factor,
+            final_div_factor=self.final_div_factor,
+        )

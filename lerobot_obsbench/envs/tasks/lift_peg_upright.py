@@ -25,9 +25,9 @@ class LiftPegUprightExpert(WaypointExpert):
 
     def plan(self):
         half_length = float(self.env.peg_half_length)
-        peg = lambda s: s.matrix_of(s.env.peg.pose)  # noqa: E731
-        near_end = lambda s: (peg(s) @ np.array([-(half_length - 0.02), 0, 0, 1]))[:3]  # noqa: E731
-        rotation = lambda s: top_down(grasp_yaw(s.tcp()[1], s.pose_of(s.env.peg)[1], np.pi))  # noqa: E731
+        peg = lambda s: s.matrix_of(s.env.peg.pose)
+        near_end = lambda s: (peg(s) @ np.array([-(half_length - 0.02), 0, 0, 1]))[:3]
+        rotation = lambda s: top_down(grasp_yaw(s.tcp()[1], s.pose_of(s.env.peg)[1], np.pi))
         self.raised = None
 
         def high(s):

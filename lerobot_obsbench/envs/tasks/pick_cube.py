@@ -20,9 +20,9 @@ from lerobot_obsbench.envs.task import Task, first, register_task
 
 class PickCubeExpert(WaypointExpert):
     def plan(self):
-        cube = lambda s: s.pose_of(s.env.cube)[0]  # noqa: E731
+        cube = lambda s: s.pose_of(s.env.cube)[0]
         yaw = self.aligned(self.env.cube)
-        goal = lambda s: first(s.env.goal_site.pose.p)  # noqa: E731
+        goal = lambda s: first(s.env.goal_site.pose.p)
         return [
             Phase("pre-grasp", lambda s: above(cube(s), 0.05), OPEN, yaw),
             Phase("descend", cube, OPEN, yaw, tol=0.005),

@@ -21,15 +21,20 @@ from lerobot_obsbench.envs.task import Task, first, register_task
 
 class PullCubeExpert(WaypointExpert):
     def plan(self):
-        cube = lambda s: s.pose_of(s.env.obj)[0]  # noqa: E731
-        goal = lambda s: first(s.env.goal_region.pose.p)  # noqa: E731
+        cube = lambda s: s.pose_of(s.env.obj)[0]
+        goal = lambda s: first(s.env.goal_region.pose.p)
         half = 0.02
-        front = lambda s: np.array([cube(s)[0] + half + 0.03, cube(s)[1], 0.02])  # noqa: E731
+        front = lambda s: np.array([cube(s)[0] + half + 0.03, cube(s)[1], 0.02])
         return [
             Phase("above front", lambda s: above(front(s), 0.08), CLOSED),
             Phase("down front", front, CLOSED, tol=0.005),
-            Phase("pull", lambda s: np.array([goal(s)[0] + half + 0.01, goal(s)[1], 0.02]), CLOSED, tol=0.005,
-                  max_steps=60),
+            Phase(
+                "pull",
+                lambda s: np.array([goal(s)[0] + half + 0.01, goal(s)[1], 0.02]),
+                CLOSED,
+                tol=0.005,
+                max_steps=60,
+            ),
         ]
 
 

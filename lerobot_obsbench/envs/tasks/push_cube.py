@@ -21,15 +21,20 @@ from lerobot_obsbench.envs.task import Task, first, register_task
 
 class PushCubeExpert(WaypointExpert):
     def plan(self):
-        cube = lambda s: s.pose_of(s.env.obj)[0]  # noqa: E731
-        goal = lambda s: first(s.env.goal_region.pose.p)  # noqa: E731
+        cube = lambda s: s.pose_of(s.env.obj)[0]
+        goal = lambda s: first(s.env.goal_region.pose.p)
         half = 0.02
-        behind = lambda s: np.array([cube(s)[0] - half - 0.03, goal(s)[1], 0.02])  # noqa: E731
+        behind = lambda s: np.array([cube(s)[0] - half - 0.03, goal(s)[1], 0.02])
         return [
             Phase("above behind", lambda s: above(behind(s), 0.08), CLOSED),
             Phase("down behind", behind, CLOSED, tol=0.005),
-            Phase("push", lambda s: np.array([goal(s)[0] - half + 0.005, goal(s)[1], 0.02]), CLOSED, tol=0.005,
-                  max_steps=60),
+            Phase(
+                "push",
+                lambda s: np.array([goal(s)[0] - half + 0.005, goal(s)[1], 0.02]),
+                CLOSED,
+                tol=0.005,
+                max_steps=60,
+            ),
         ]
 
 

@@ -19,10 +19,10 @@ from lerobot_obsbench.envs.task import Task, first, register_task
 
 class StackCubeExpert(WaypointExpert):
     def plan(self):
-        cube_a = lambda s: s.pose_of(s.env.cubeA)[0]  # noqa: E731
+        cube_a = lambda s: s.pose_of(s.env.cubeA)[0]
         yaw = self.aligned(self.env.cubeA)
         half = float(first(self.env.cube_half_size)[0]) if hasattr(self.env, "cube_half_size") else 0.02
-        on_b = lambda s: above(s.pose_of(s.env.cubeB)[0], 2 * half)  # noqa: E731
+        on_b = lambda s: above(s.pose_of(s.env.cubeB)[0], 2 * half)
         return [
             Phase("pre-grasp", lambda s: above(cube_a(s), 0.05), OPEN, yaw),
             Phase("descend", cube_a, OPEN, yaw, tol=0.005),

@@ -27,8 +27,9 @@ class ObsACT(ACT):
 
     def __init__(self, config: ObsACTConfig, dataset_stats: dict | None = None):
         super().__init__(config)
-        self.observation = ObservationEncoder(config, output="tokens", dim=config.dim_model,
-                                              dataset_stats=dataset_stats)
+        self.observation = ObservationEncoder(
+            config, output="tokens", dim=config.dim_model, dataset_stats=dataset_stats
+        )
 
     def _latent(self, batch: dict[str, Tensor], batch_size: int, device: torch.device):
         """VAE encoder (training with actions) -> latent sample, or the zero latent at inference."""
@@ -68,10 +69,15 @@ class ObsACT(ACT):
         encoder_in = torch.cat([torch.stack(tokens_1d), obs_tokens.transpose(0, 1)])
         encoder_pos = torch.cat([pos_1d, obs_pos.expand(batch_size, -1, -1).transpose(0, 1)])
         encoder_out = self.encoder(encoder_in, pos_embed=encoder_pos)
-        decoder_in = torch.zeros(self.config.chunk_size, batch_size, self.config.dim_model,
-                                 dtype=encoder_pos.dtype, device=device)
-        decoder_out = self.decoder(decoder_in, encoder_out, encoder_pos_embed=encoder_pos,
-                                   decoder_pos_embed=self.decoder_pos_embed.weight.unsqueeze(1))
+        decoder_in = torch.zeros(
+            self.config.chunk_size, batch_size, self.config.dim_model, dtype=encoder_pos.dtype, device=device
+        )
+        decoder_out = self.decoder(
+            decoder_in,
+            encoder_out,
+            encoder_pos_embed=encoder_pos,
+            decoder_pos_embed=self.decoder_pos_embed.weight.unsqueeze(1),
+        )
         return self.action_head(decoder_out.transpose(0, 1)), (mu, log_sigma_x2)
 
 
@@ -109,6 +115,7 @@ class ObsACTPolicy(EnvObservationMixin, ACTPolicy):
         params = [(n, p) for n, p in self.named_parameters() if p.requires_grad]
         if self.config.optimizer_lr_backbone is None:
             return [{"params": [p for _, p in params]}]
-        return [{"params": [p for n, p in params if not n.startswith(ENCODER_PREFIX)]},
-                {"params": [p for n, p in params if n.startswith(ENCODER_PREFIX)],
-                 "lr": self.config.optimizer_lr_backbone}]
+        return [
+            {"params": [p for n, p in params if not n.startswith(ENCODER_PREFIX)]},
+            {"params": [p for n, p in params if n.startswith(ENCODER_PREFIX)], "lr": self.config.optimizer_lr_backbone},
+        ]

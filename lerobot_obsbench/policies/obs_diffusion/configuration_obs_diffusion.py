@@ -12,8 +12,10 @@ from lerobot_obsbench.policies.observation_config import ObservationConfig
 from lerobot_obsbench.schema import check_choice
 
 DENOISERS = ("unet", "transformer")
-IMAGE_PIPELINE = ("the observation encoder replaces Diffusion Policy's image pipeline (crop, resize, spatial "
-                  "softmax): choose it with --policy.encoder / --policy.pretrained")
+IMAGE_PIPELINE = (
+    "the observation encoder replaces Diffusion Policy's image pipeline (crop, resize, spatial "
+    "softmax): choose it with --policy.encoder / --policy.pretrained"
+)
 
 
 @PreTrainedConfig.register_subclass("obs_diffusion")
@@ -44,10 +46,20 @@ class ObsDiffusionConfig(ObservationConfig, DiffusionConfig):
     transformer_causal: bool = True
 
     REPLACED_FIELDS: ClassVar[dict[str, str]] = {
-        **{name: IMAGE_PIPELINE for name in (
-            "vision_backbone", "pretrained_backbone_weights", "resize_shape", "crop_ratio", "crop_shape",
-            "crop_is_random", "use_group_norm", "spatial_softmax_num_keypoints",
-            "use_separate_rgb_encoder_per_camera")},
+        **{
+            name: IMAGE_PIPELINE
+            for name in (
+                "vision_backbone",
+                "pretrained_backbone_weights",
+                "resize_shape",
+                "crop_ratio",
+                "crop_shape",
+                "crop_is_random",
+                "use_group_norm",
+                "spatial_softmax_num_keypoints",
+                "use_separate_rgb_encoder_per_camera",
+            )
+        },
         "scheduler_name": "the schedule is the paper's OneCycle (--policy.scheduler_pct_start, ...)",
         "scheduler_warmup_steps": "the schedule is the paper's OneCycle (--policy.scheduler_pct_start, ...)",
     }
@@ -56,5 +68,7 @@ class ObsDiffusionConfig(ObservationConfig, DiffusionConfig):
         super().__post_init__()
         check_choice("denoiser", self.denoiser, DENOISERS)
         if self.denoiser == "transformer" and self.transformer_dim % self.transformer_heads:
-            raise ValueError(f"transformer_dim ({self.transformer_dim}) must be divisible by transformer_heads "
-                             f"({self.transformer_heads})")
+            raise ValueError(
+                f"transformer_dim ({self.transformer_dim}) must be divisible by transformer_heads "
+                f"({self.transformer_heads})"
+            )

@@ -36,13 +36,20 @@ class DiffusionTransformer(nn.Module):
         self.n_obs_steps, self.causal = config.n_obs_steps, config.transformer_causal
         self.action_in = nn.Linear(action_dim, dim)
         self.action_pos = nn.Parameter(torch.zeros(1, config.horizon, dim))
-        self.step_embed = nn.Sequential(DiffusionSinusoidalPosEmb(dim), nn.Linear(dim, dim * 4), nn.Mish(),
-                                        nn.Linear(dim * 4, dim))
+        self.step_embed = nn.Sequential(
+            DiffusionSinusoidalPosEmb(dim), nn.Linear(dim, dim * 4), nn.Mish(), nn.Linear(dim * 4, dim)
+        )
         self.cond_in = nn.Linear(cond_dim_per_step, dim)
         self.cond_pos = nn.Parameter(torch.zeros(1, 1 + config.n_obs_steps, dim))
-        layer = nn.TransformerDecoderLayer(dim, config.transformer_heads, dim_feedforward=4 * dim,
-                                           dropout=config.transformer_attn_dropout, activation="gelu",
-                                           batch_first=True, norm_first=True)
+        layer = nn.TransformerDecoderLayer(
+            dim,
+            config.transformer_heads,
+            dim_feedforward=4 * dim,
+            dropout=config.transformer_attn_dropout,
+            activation="gelu",
+            batch_first=True,
+            norm_first=True,
+        )
         self.decoder = nn.TransformerDecoder(layer, config.transformer_layers)
         self.norm = nn.LayerNorm(dim)
         self.action_out = nn.Linear(dim, action_dim)
@@ -67,8 +74,9 @@ class ObsDiffusionModel(DiffusionModel):
         # same parts here with the observation encoder's feature size instead.
         nn.Module.__init__(self)
         self.config = config
-        self.observation = ObservationEncoder(config, output="global", dim=config.diffusion_step_embed_dim,
-                                              dataset_stats=dataset_stats)
+        self.observation = ObservationEncoder(
+            config, output="global", dim=config.diffusion_step_embed_dim, dataset_stats=dataset_stats
+        )
         global_cond_dim = config.robot_state_feature.shape[0] + self.observation.out_dim
         if config.env_state_feature:
             global_cond_dim += config.env_state_feature.shape[0]
