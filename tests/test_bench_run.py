@@ -59,10 +59,15 @@ def test_grid_runs_resumes_after_a_kill_and_reports(tmp_path):
 
     first = obsbench("run", str(grid_file), "--out", str(out), start_new_session=True)
     deadline = time.time() + 600
-    while time.time() < deadline and len(read_results(results, warn=lambda m: None)) < 1:
+
+    def next_run_training() -> bool:  # a run recorded, and the next one's training started: kill it mid-run
+        finished = {r["run_id"] for r in read_results(results, warn=lambda m: None)}
+        logs = [p for p in (out / "runs").glob("*/train.log") if p.parent.name not in finished]
+        return bool(finished) and bool(logs)
+
+    while time.time() < deadline and not next_run_training():
         assert first.poll() is None, first.stdout.read()
-        time.sleep(1)
-    time.sleep(8)  # let the next run get into training before the kill
+        time.sleep(0.2)
     os.killpg(first.pid, signal.SIGKILL)
     first.wait()
     done_before = {r["run_id"] for r in read_results(results)}
