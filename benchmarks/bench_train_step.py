@@ -23,7 +23,7 @@ from benchmarks.common import load_synthetic, timed, write
 from lerobot_obsbench.policies import ObsACTConfig, ObsDiffusionConfig
 from lerobot_obsbench.policies.obs_act.modeling_obs_act import ObsACTPolicy
 from lerobot_obsbench.policies.obs_diffusion.modeling_obs_diffusion import ObsDiffusionPolicy
-from lerobot_obsbench.presets import PRESETS, preset_overrides
+from lerobot_obsbench.presets import model_sizes, preset_overrides
 
 CAM = "base_camera"
 PAIRS = [
@@ -96,7 +96,10 @@ def main() -> None:
         ("act", ACTConfig, ACTPolicy, ObsACTConfig, ObsACTPolicy),
         ("diffusion", DiffusionConfig, DiffusionPolicy, ObsDiffusionConfig, ObsDiffusionPolicy),
     ):
-        common = dict(PRESETS[args.preset][f"obs_{kind}"])  # model sizes, shared by stock and plugin policies
+        # model sizes, shared by stock and plugin policies (the stock config's fields only)
+        common = {
+            k: v for k, v in model_sizes(args.preset, f"obs_{kind}").items() if k in stock_cls.__dataclass_fields__
+        }
         stock_extra = {"pretrained_backbone_weights": None}
         if kind == "diffusion":
             stock_extra["crop_shape"] = None
@@ -130,7 +133,7 @@ def main() -> None:
         pairs = PAIRS + ([("pointcloud", "pointnet@2048")] if kind == "act" else [])
         for space, encoder in pairs:
             extra = dict(
-                preset_overrides(args.preset, f"obs_{kind}", space),
+                preset_overrides(args.preset, f"obs_{kind}", space, encoder.split("@")[0]),
                 encoder=encoder.split("@")[0],
                 workspace=list(WORKSPACE),
             )

@@ -43,7 +43,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
 def cmd_preset(args: argparse.Namespace) -> int:
     from lerobot_obsbench.presets import preset_args
 
-    print(" ".join(preset_args(args.preset, args.policy, args.obs_space)))
+    print(" ".join(preset_args(args.preset, args.policy, args.obs_space, args.encoder)))
     return 0
 
 
@@ -140,10 +140,19 @@ def cmd_run(args: argparse.Namespace) -> int:
     out = args.out or Path("outputs") / "bench" / grid.name
     loader_workers = args.loader_workers if args.loader_workers is not None else (0 if args.device == "cpu" else 4)
     failures = run_grid(
-        grid, out, workers=args.workers, device=args.device, dry_run=args.dry_run, loader_workers=loader_workers
+        grid,
+        out,
+        engine=args.engine,
+        workers=args.workers,
+        device=args.device,
+        address=args.address,
+        dry_run=args.dry_run,
+        loader_workers=loader_workers,
+        threads=args.threads,
+        progress_every=args.progress_every,
     )
     if failures:
-        print(f"{failures} run(s) failed (see the messages above); rerun the same command to retry them.")
+        print(f"{failures} unit(s) of work failed (see the messages above); rerun the same command to retry them.")
         return 1
     if not args.dry_run:
         print(f"done: results in {out / 'results.jsonl'}; `obsbench report {out / 'results.jsonl'}` makes the tables")
@@ -153,7 +162,14 @@ def cmd_run(args: argparse.Namespace) -> int:
 def cmd_report(args: argparse.Namespace) -> int:
     import json
 
-    from lerobot_obsbench.bench.report import build_report, markdown_table, read_published, summary_json, write_report
+    from lerobot_obsbench.bench.report import (
+        build_report,
+        markdown_table,
+        read_published,
+        resolve_table,
+        summary_json,
+        write_report,
+    )
     from lerobot_obsbench.bench.results import read_results
 
     if args.results is None and args.table is None:
@@ -161,13 +177,16 @@ def cmd_report(args: argparse.Namespace) -> int:
     records = read_results(args.results) if args.results else []
     if args.results and not records:
         print(f"warning: no readable records in {args.results}", file=sys.stderr)
-    published = read_published(args.table) if args.table else None
-    report = build_report(records, published, published_name=args.table.stem if args.table else "published")
+    table = resolve_table(args.table) if args.table else None
+    published = read_published(table) if table else None
+    report = build_report(
+        records, published, published_name=table.stem if table else "published", checkpoint=args.checkpoint
+    )
     out = args.out or (args.results.parent / "report" if args.results else Path("report"))
     paths = write_report(report, out, title=args.title)
     heading, (header, rows) = report["sections"][0]
     print(f"{heading}\n{markdown_table(header, rows)}")
-    for source, methods in summary_json(report).items():
+    for source, methods in report["summary"].items():
         for method, s in sorted(methods.items(), key=lambda kv: kv[1]["mean_rank"]):
             print(f"{source:9s} {method:45s} Mean S.R. {s['mean_sr']:.2f}  Mean Rank {s['mean_rank']:.2f}")
     if args.json:
@@ -177,8 +196,18 @@ def cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_convert(args: argparse.Namespace) -> int:
+    from lerobot_obsbench.bench.results import convert_v1
+
+    backup = convert_v1(args.results)
+    print(f"{args.results}: converted to train + eval records; the original is kept as {backup}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
+    from lerobot_obsbench.bench.engines import ENGINES
     from lerobot_obsbench.bench.grid import preset_grids
+    from lerobot_obsbench.bench.report import CHECKPOINT_CHOICES, published_tables
     from lerobot_obsbench.envs.maniskill import CONTROL_MODES, DEFAULT_CONTROL_MODE
     from lerobot_obsbench.envs.task import DEMO_SEED_START
     from lerobot_obsbench.presets import PRESETS
@@ -266,8 +295,28 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("grid", help=f"grid YAML file, or the name of a preset grid: {', '.join(preset_grids())}")
     p.add_argument("--out", type=Path, default=None, help="output directory (default outputs/bench/<grid name>)")
-    p.add_argument("--workers", type=int, default=1, help="runs executed in parallel local processes")
-    p.add_argument("--device", default="cpu", help="torch device for training and evaluation (cpu, cuda)")
+    p.add_argument(
+        "--engine",
+        default="local",
+        choices=ENGINES,
+        help="local: a process pool on this machine; "
+        "ray: Ray tasks on an existing cluster (--address) or a new local Ray instance",
+    )
+    p.add_argument("--address", default=None, help="Ray cluster address (e.g. auto, or ray://HEAD:10001)")
+    p.add_argument("--workers", type=int, default=1, help="units of work run in parallel by the local engine")
+    p.add_argument(
+        "--device",
+        default="cpu",
+        help="torch device for training, evaluation and the simulator's "
+        "renderer (cpu, cuda, cuda:N); with cuda each unit asks the engine for one GPU",
+    )
+    p.add_argument(
+        "--threads",
+        type=int,
+        default=None,
+        help="CPU threads per unit (default: the cores shared by the local workers; 1 per CPU under Ray)",
+    )
+    p.add_argument("--progress-every", type=float, default=30.0, help="seconds between progress lines")
     p.add_argument(
         "--loader-workers",
         type=int,
@@ -283,19 +332,35 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("results", type=Path, nargs="?", default=None, help="results.jsonl written by `obsbench run`")
     p.add_argument(
         "--table",
-        type=Path,
         default=None,
-        help="published table CSV: rows = tasks, columns = methods, values = success rates in [0, 1]",
+        help="published table: a CSV (rows = tasks, columns = methods, values = success rates in [0, 1]) or the "
+        f"name of one of the paper's tables shipped with the plugin: {', '.join(published_tables())}",
+    )
+    p.add_argument(
+        "--checkpoint",
+        default="best",
+        choices=CHECKPOINT_CHOICES,
+        help="which checkpoint's test "
+        "evaluations the tables show: best on the validation seeds (where a run has one) or last",
     )
     p.add_argument("--out", type=Path, default=None, help="report directory (default: next to the results)")
     p.add_argument("--json", type=Path, default=None, help="write mean_sr and mean_rank per method here")
     p.add_argument("--title", default="OBSBench report")
     p.set_defaults(func=cmd_report)
 
+    p = sub.add_parser(
+        "convert-results",
+        help="convert a results file written by lerobot-obsbench 0.1 (one record "
+        "per run) into train + eval records; checkpoints and evaluations are kept",
+    )
+    p.add_argument("results", type=Path)
+    p.set_defaults(func=cmd_convert)
+
     p = sub.add_parser("preset", help="print the --policy.* overrides of a named preset, to paste into lerobot-train")
     p.add_argument("--preset", default="cpu", choices=tuple(PRESETS))
     p.add_argument("--policy", default=POLICY_TYPES[0], choices=POLICY_TYPES)
     p.add_argument("--obs-space", default="pointcloud", choices=OBS_SPACES)
+    p.add_argument("--encoder", default=None, help="the encoder you train with (default: the preset's for the space)")
     p.set_defaults(func=cmd_preset)
     return parser
 
@@ -305,11 +370,12 @@ def main(argv: list[str] | None = None) -> int:
     import lerobot_obsbench  # noqa: F401  (registers policies and encoders)
     from lerobot_obsbench.bench.grid import GridError
     from lerobot_obsbench.bench.report import ReportError
+    from lerobot_obsbench.bench.results import ResultsFormatError
     from lerobot_obsbench.envs.task import TaskError
 
     try:
         return args.func(args)
-    except (GridError, ReportError, TaskError, SchemaError) as err:
+    except (GridError, ReportError, TaskError, SchemaError, ResultsFormatError) as err:
         print(f"obsbench {args.command}: error: {err}", file=sys.stderr)
         return 2
 

@@ -97,6 +97,14 @@ def pack(mask: Tensor, *values: Tensor) -> tuple[Tensor, ...]:
     return (*packed, new_mask)
 
 
+def shuffle(mask: Tensor, *values: Tensor, generator: torch.Generator | None = None) -> tuple[Tensor, ...]:
+    """Randomly reorder the masked entries of each (B, N, ...) tensor (padding stays last); returns the
+    shuffled tensors followed by the mask."""
+    keys = torch.rand(mask.shape, device=mask.device, generator=generator).masked_fill(~mask, 2.0)
+    order = torch.argsort(keys, dim=1)
+    return (*(gather(v, order) for v in values), gather(mask, order))
+
+
 def gather(values: Tensor, index: Tensor) -> Tensor:
     """values (B, N, ...) indexed by index (B, ...) along dim 1 -> (B, ..., ...)."""
     b = values.shape[0]

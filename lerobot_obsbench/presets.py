@@ -1,24 +1,40 @@
 """Named hyper-parameter presets, as `--policy.*` overrides for stock `lerobot-train`.
 
-- `paper`: the config defaults themselves (Appendix C of the paper; DESIGN §6). Needs a GPU.
+- `paper`: the paper's protocol as its official code runs it (../shared/paper/official-protocol.md; the README's
+  "Differences from the paper" lists what stays different and why): the config defaults' model sizes, plus
+  ACT's MSE loss and raw-metre point positions, 224 px image inputs (49 ResNet tokens), zero-started extra stem
+  channels, the official depth / xyz scaling and point-sampling details, Diffusion Policy's official point-cloud
+  head and weight-decay exemptions, gradient clipping at 0.5 and the per-policy OneCycle warm-up. Needs a GPU.
 - `cpu`: small models that train in minutes on a 2-core CPU (README main job): ResNet-18 instead of ResNet-50
   for images, 128 point tokens. Not the paper's setting: results from it are smoke tests, never a reproduction.
 - `tiny`: the smallest sizes that still exercise every code path (tests).
 
-A preset only sets fields that the run's space uses: point-cloud fields for point clouds, the image encoder
-for image spaces (the policies refuse values they would ignore).
+A preset sets only fields that the run's space and encoder use (the policies refuse values they would ignore):
+overrides are keyed by policy type ("*": both) and by the kind of space — "all", "image" (rgb, depth, rgbd,
+pointmap), "depth" (image spaces with a depth or xyz channel), "point" — or an encoder's name.
 """
 
 from __future__ import annotations
 
 from lerobot_obsbench.encoders import default_encoder
-from lerobot_obsbench.schema import IMAGE_SPACES, POINT_SPACES, POLICY_TYPES, check_choice
+from lerobot_obsbench.schema import DEPTH_IMAGE_SPACES, IMAGE_SPACES, POINT_SPACES, POLICY_TYPES, check_choice
 
-# Model sizes per preset and policy.
-PRESETS: dict[str, dict[str, dict[str, object]]] = {
-    "paper": {"obs_act": {}, "obs_diffusion": {}},
+ACT, DP = POLICY_TYPES
+
+PRESETS: dict[str, dict[tuple[str, str], dict[str, object]]] = {
+    "paper": {
+        ("*", "all"): {"optimizer_grad_clip_norm": 0.5},
+        (ACT, "all"): {"action_loss": "mse", "scheduler_pct_start": 0.1},
+        (DP, "all"): {"optimizer_weight_decay": 1e-4, "optimizer_decay_exempt_1d": True, "scheduler_pct_start": 0.15},
+        ("*", "image"): {"image_input_size": 224},
+        **{("*", stem): {"zero_init_extra_channels": True} for stem in ("resnet18", "resnet50", "vit_b")},
+        ("*", "depth"): {"depth_normalization": "official"},
+        ("*", "point"): {"point_pipeline": "official"},
+        (ACT, "point"): {"position_scale": 1.0},
+        (DP, "point"): {"dp_point_head": "official"},
+    },
     "cpu": {
-        "obs_act": {
+        (ACT, "all"): {
             "dim_model": 128,
             "n_heads": 4,
             "dim_feedforward": 256,
@@ -26,10 +42,12 @@ PRESETS: dict[str, dict[str, dict[str, object]]] = {
             "n_vae_encoder_layers": 2,
             "chunk_size": 20,
         },
-        "obs_diffusion": {"down_dims": [64, 128, 256], "diffusion_step_embed_dim": 64, "num_inference_steps": 20},
+        (DP, "all"): {"down_dims": [64, 128, 256], "diffusion_step_embed_dim": 64, "num_inference_steps": 20},
+        ("*", "image"): {"encoder": "resnet18"},
+        ("*", "point"): {"num_tokens": 128},
     },
     "tiny": {
-        "obs_act": {
+        (ACT, "all"): {
             "dim_model": 32,
             "n_heads": 2,
             "dim_feedforward": 32,
@@ -37,45 +55,60 @@ PRESETS: dict[str, dict[str, dict[str, object]]] = {
             "n_vae_encoder_layers": 1,
             "chunk_size": 5,
         },
-        "obs_diffusion": {
+        (DP, "all"): {
             "down_dims": [16, 32],
             "diffusion_step_embed_dim": 16,
             "horizon": 8,
             "n_action_steps": 4,
             "num_inference_steps": 4,
         },
+        ("*", "image"): {"encoder": "resnet18"},
+        ("*", "point"): {"num_tokens": 16, "knn": 4},
     },
 }
-# Point tokenizer sizes per preset (point-cloud spaces only).
-POINT_OVERRIDES: dict[str, dict[str, object]] = {
-    "paper": {},
-    "cpu": {"num_tokens": 128},
-    "tiny": {"num_tokens": 16, "knn": 4},
-}
-# Image encoder per preset (image spaces only); None: the registry's default (the paper's ResNet-50).
-IMAGE_ENCODER: dict[str, str | None] = {"paper": None, "cpu": "resnet18", "tiny": "resnet18"}
 
 
-def preset_overrides(preset: str, policy_type: str, obs_space: str) -> dict[str, object]:
-    check_choice("preset", preset, PRESETS)
-    check_choice("policy type", policy_type, POLICY_TYPES)
-    overrides = dict(PRESETS[preset][policy_type])
+def space_kinds(obs_space: str) -> tuple[str, ...]:
+    kinds = ["all"]
+    if obs_space in IMAGE_SPACES:
+        kinds.append("image")
+    if obs_space in DEPTH_IMAGE_SPACES:
+        kinds.append("depth")
     if obs_space in POINT_SPACES:
-        overrides.update(POINT_OVERRIDES[preset])
-    if obs_space in IMAGE_SPACES and IMAGE_ENCODER[preset]:
-        overrides["encoder"] = IMAGE_ENCODER[preset]
+        kinds.append("point")
+    return tuple(kinds)
+
+
+def _merged(preset: str, policy_type: str, kinds) -> dict[str, object]:
+    overrides: dict[str, object] = {}
+    for kind in kinds:
+        for policy in ("*", policy_type):
+            overrides.update(PRESETS[preset].get((policy, kind), {}))
     return overrides
 
 
 def preset_encoder(preset: str, obs_space: str) -> str:
     """The encoder a preset uses for `obs_space` when none is named."""
-    return str(preset_overrides(preset, POLICY_TYPES[0], obs_space).get("encoder") or default_encoder(obs_space))
+    return str(_merged(preset, ACT, space_kinds(obs_space)).get("encoder") or default_encoder(obs_space))
 
 
-def preset_args(preset: str, policy_type: str, obs_space: str) -> list[str]:
+def preset_overrides(preset: str, policy_type: str, obs_space: str, encoder: str | None = None) -> dict[str, object]:
+    """The preset's `--policy.*` fields for a run with `encoder` (None: the preset's encoder for the space)."""
+    check_choice("preset", preset, PRESETS)
+    check_choice("policy type", policy_type, POLICY_TYPES)
+    return _merged(preset, policy_type, (*space_kinds(obs_space), encoder or preset_encoder(preset, obs_space)))
+
+
+def model_sizes(preset: str, policy_type: str) -> dict[str, object]:
+    """The preset's overrides that every space shares (model sizes and training recipe)."""
+    check_choice("preset", preset, PRESETS)
+    return _merged(preset, policy_type, ("all",))
+
+
+def preset_args(preset: str, policy_type: str, obs_space: str, encoder: str | None = None) -> list[str]:
     """`--policy.<field>=<value>` arguments for stock lerobot-train."""
     args = []
-    for name, value in preset_overrides(preset, policy_type, obs_space).items():
+    for name, value in preset_overrides(preset, policy_type, obs_space, encoder).items():
         text = "[" + ",".join(str(v) for v in value) + "]" if isinstance(value, list) else str(value)
         args.append(f"--policy.{name}={text}")
     return args

@@ -32,14 +32,24 @@ POLICY_TYPES = ("obs_act", "obs_diffusion")
 # Spaces fed to image encoders, with their channel counts (rgb 3, metric depth 1, rgb ‖ depth, rgb ‖ xyz).
 IMAGE_CHANNELS = {"rgb": 3, "depth": 1, "rgbd": 4, "pointmap": 6}
 IMAGE_SPACES = tuple(IMAGE_CHANNELS)
+DEPTH_IMAGE_SPACES = ("depth", "rgbd", "pointmap")  # image spaces with a depth or xyz channel
 POINT_SPACES = ("pointcloud",)
-OBS_SPACES = (*IMAGE_SPACES, *POINT_SPACES)
+# The blind control (beyond the paper): the same proprioception and goal, no visual observation at all.
+BLIND_SPACES = ("none",)
+OBS_SPACES = (*IMAGE_SPACES, *POINT_SPACES, *BLIND_SPACES)
 # Per-point features of a point cloud, with their channel counts.
 POINT_FEATURES = {"rgb+xyz": 6, "xyz": 3, "rgb": 3}
 # Frames point coordinates can be expressed in: world (robot base), the first camera, the end effector.
 FRAMES = ("world", "camera", "ee")
 # Where the point tokenizer's FPS + kNN grouping sits: after the backbone (paper default) or before it.
 SAMPLING = ("post", "pre")
+# How depth images and pointmap coordinates are scaled: clipped to a range and mapped to [-1, 1] ("clip"), or as
+# the official code does ("official": (metres - 0.5) / 0.5, unclipped).
+DEPTH_NORMALIZATIONS = ("clip", "official")
+# Point-cloud sampling details: the plugin's (deterministic voxel point and FPS start at evaluation) or the
+# official code's ("official": a random point per voxel also at evaluation, points shuffled in training so FPS
+# starts anywhere, tokenizer BatchNorm as the official code's).
+POINT_PIPELINES = ("plugin", "official")
 
 STATE_KEY = OBS_STATE
 ENV_STATE_KEY = OBS_ENV_STATE
@@ -58,6 +68,7 @@ SPACE_SENSORS: dict[str, tuple[str, ...]] = {
     "rgbd": (IMAGE_PREFIX, DEPTH_PREFIX),
     "pointmap": (IMAGE_PREFIX, DEPTH_PREFIX, INTRINSICS_PREFIX, CAM2WORLD_PREFIX),
     "pointcloud": (IMAGE_PREFIX, DEPTH_PREFIX, INTRINSICS_PREFIX, CAM2WORLD_PREFIX),
+    "none": (),
 }
 
 
@@ -79,10 +90,10 @@ def check_obs_space(obs_space: str) -> str:
 
 
 def input_channels(obs_space: str, point_features: str = "rgb+xyz") -> int:
-    """Channels the encoder receives: image channels, or per-point feature size for point clouds."""
+    """Channels the encoder receives: image channels, per-point feature size for point clouds, 0 when blind."""
     if check_obs_space(obs_space) in POINT_SPACES:
         return POINT_FEATURES[check_choice("point_features", point_features, POINT_FEATURES)]
-    return IMAGE_CHANNELS[obs_space]
+    return IMAGE_CHANNELS.get(obs_space, 0)
 
 
 @dataclass
@@ -165,11 +176,13 @@ def validate_features(
 ) -> list[str]:
     """Check that `features` (a LeRobot dataset `features` dict or policy features) serve `obs_space`.
 
-    Returns the cameras used (all cameras that have the needed keys when `cameras` is None). Raises
-    `SchemaError` naming every missing or mis-shaped key and how to fix it.
+    Returns the cameras used (all cameras that have the needed keys when `cameras` is None; none for the blind
+    space). Raises `SchemaError` naming every missing or mis-shaped key and how to fix it.
     """
     check_obs_space(obs_space)
     needed = SPACE_SENSORS[obs_space]
+    if not needed:
+        return []
     if cameras is None or len(cameras) == 0:
         cameras = [c for c in cameras_in(features) if all(p + c in features for p in needed)]
         if not cameras:
@@ -204,7 +217,10 @@ def validate_features(
 
 
 def camera_resolution(features: Mapping[str, object], obs_space: str, cameras: list[str]) -> list[int]:
-    """(height, width) of the first camera's frames (colour, else depth), as the policy was trained on."""
+    """(height, width) of the first camera's frames (colour, else depth), as the policy was trained on; empty when
+    the space reads no camera."""
+    if not cameras:
+        return []
     cam = cameras[0]
     for key in (image_key(cam), depth_key(cam)):
         if key in features and prefix_of(key) in SPACE_SENSORS[obs_space]:

@@ -2,11 +2,15 @@
 
     rgb        -> images (B, n_cam, 3, H, W)   ImageNet-normalised colour
     depth      -> images (B, n_cam, 1, H, W)   metric depth clipped to `depth_clip` and scaled to [-1, 1]
+                                               (`depth_normalization="official"`: (metres - 0.5) / 0.5)
     rgbd       -> images (B, n_cam, 4, H, W)   rgb ‖ depth, channel-stacked
-    pointmap   -> images (B, n_cam, 6, H, W)   rgb ‖ xyz (metres, chosen frame; 0 where depth is invalid)
+    pointmap   -> images (B, n_cam, 6, H, W)   rgb ‖ xyz (metres, chosen frame; 0 where depth is invalid;
+                                               official normalization: (xyz - 0.5) / 0.5)
     pointcloud -> PointCloud(xyz (B, N, 3), features (B, N, C), mask (B, N)): all cameras fused, cropped to the
                   workspace box (world frame, which also drops the ground), moved to the chosen frame, one point
-                  per voxel; features are rgb in [-1, 1] and/or xyz in metres.
+                  per voxel (random in training; with `point_pipeline="official"` also in evaluation, and
+                  points shuffled in training); features are rgb in [-1, 1] and/or xyz in metres.
+    none       -> (B, 0): the blind control sees nothing (the batch size comes from observation.state).
 
 The same module runs on dataset batches in training and on env observations in evaluation, so an observation
 space is never baked into stored data.
@@ -19,8 +23,12 @@ from torch import Tensor, nn
 
 from lerobot_obsbench import geometry
 from lerobot_obsbench.schema import (
+    BLIND_SPACES,
+    DEPTH_NORMALIZATIONS,
     FRAMES,
     POINT_FEATURES,
+    POINT_PIPELINES,
+    STATE_KEY,
     PointCloud,
     SchemaError,
     cam2world_key,
@@ -56,10 +64,12 @@ class ObservationAdapter(nn.Module):
         workspace: tuple[float, ...] = DEFAULT_WORKSPACE,
         voxel_size: float = 0.005,
         depth_clip: tuple[float, float] = (0.0, 2.0),
+        depth_normalization: str = "clip",
+        point_pipeline: str = "plugin",
     ):
         super().__init__()
-        if not cameras:
-            raise SchemaError("ObservationAdapter needs at least one camera name.")
+        if not cameras and obs_space not in BLIND_SPACES:
+            raise SchemaError(f"ObservationAdapter for obs_space={obs_space!r} needs at least one camera name.")
         check_geometry(workspace, voxel_size, depth_clip)
         self.obs_space = check_obs_space(obs_space)
         self.cameras = list(cameras)
@@ -68,6 +78,8 @@ class ObservationAdapter(nn.Module):
         self.workspace = tuple(float(w) for w in workspace)
         self.voxel_size = float(voxel_size)
         self.depth_clip = (float(depth_clip[0]), float(depth_clip[1]))
+        self.depth_normalization = check_choice("depth_normalization", depth_normalization, DEPTH_NORMALIZATIONS)
+        self.official_points = check_choice("point_pipeline", point_pipeline, POINT_PIPELINES) == "official"
         self.register_buffer("rgb_mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("rgb_std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
 
@@ -112,6 +124,8 @@ class ObservationAdapter(nn.Module):
     # ---- spaces ------------------------------------------------------------------------------------------
 
     def _scaled_depth(self, depth_m: Tensor) -> Tensor:
+        if self.depth_normalization == "official":
+            return (depth_m - 0.5) / 0.5
         near, far = self.depth_clip
         return (depth_m.clamp(near, far) - near) / (far - near) * 2 - 1
 
@@ -132,6 +146,9 @@ class ObservationAdapter(nn.Module):
         return points, depth_m > 0
 
     def forward(self, batch: dict, ee_pose: Tensor | None = None) -> Tensor | PointCloud:
+        if self.obs_space in BLIND_SPACES:
+            state = _require(batch, STATE_KEY)
+            return state.new_zeros(state.shape[0], 0)
         if self.obs_space == "pointcloud":
             return self._pointcloud(batch, ee_pose)
         to_frame = self._frame_transform(self.cameras[0], batch, ee_pose) if self.obs_space == "pointmap" else None
@@ -146,7 +163,10 @@ class ObservationAdapter(nn.Module):
                 points, valid = self._world_points(batch, cam)
                 if to_frame is not None:
                     points = geometry.transform_points(points, to_frame)
-                channels.append((points * valid[..., None]).permute(0, 3, 1, 2))
+                points = points * valid[..., None]
+                if self.depth_normalization == "official":
+                    points = (points - 0.5) / 0.5
+                channels.append(points.permute(0, 3, 1, 2))
             per_camera.append(torch.cat(channels, dim=1))
         return torch.stack(per_camera, dim=1)
 
@@ -176,8 +196,10 @@ class ObservationAdapter(nn.Module):
         to_frame = self._frame_transform(self.cameras[0], batch, ee_pose)
         if to_frame is not None:
             xyz = geometry.transform_points(xyz, to_frame)
-        keep = geometry.voxel_sample(xyz, valid, self.voxel_size, random=self.training)
+        keep = geometry.voxel_sample(xyz, valid, self.voxel_size, random=self.training or self.official_points)
         xyz, rgb, mask = geometry.pack(keep, xyz, rgb)
+        if self.training and self.official_points:  # FPS then starts from a random point, as in the official code
+            xyz, rgb, mask = geometry.shuffle(mask, xyz, rgb)
         if self.point_features == "rgb+xyz":
             feats = torch.cat([rgb, xyz], -1)
         else:

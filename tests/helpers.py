@@ -61,7 +61,7 @@ def training_setup(policy_type: str, obs_space: str, root, preset: str = "tiny",
 
     from lerobot_obsbench.presets import preset_overrides
 
-    fields = {**preset_overrides(preset, policy_type, obs_space), **overrides}
+    fields = {**preset_overrides(preset, policy_type, obs_space, overrides.get("encoder")), **overrides}
     fields.setdefault("workspace", [-0.5, 0.5, -0.5, 0.5, 0.005, 0.5])
     cfg = PreTrainedConfig.get_choice_class(policy_type)(obs_space=obs_space, device="cpu", **fields)
     meta = LeRobotDatasetMetadata("local/test", root=root)

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lerobot_obsbench.bench.grid import GridError, RunSpec, load_grid, parse_grid, preset_grids
-from lerobot_obsbench.bench.runner import plan, train_command
+from lerobot_obsbench.bench.grid import EvalSpec, GridError, RunSpec, load_grid, parse_grid, preset_grids
+from lerobot_obsbench.bench.results import append_result
+from lerobot_obsbench.bench.units import train_command
 from lerobot_obsbench.cli import main
 from lerobot_obsbench.envs.perturbations import orbit_eye, parse_perturbation
 
@@ -23,8 +24,8 @@ def test_presets_expand_and_validate():
         assert runs, name
         assert len({r.run_id for r in runs}) == len(runs), f"{name}: two runs share an id"
         sizes[name] = runs
-    # paper-main: 3 tasks x 7 (space, encoder) pairs of Table 2 x 2 policies x 3 lrs x 3 seeds
-    assert len(sizes["paper-main"]) == 3 * 7 * 2 * 3 * 3
+    # paper-main: 3 tasks x 7 (space, encoder) pairs of Table 2 x 2 policies x 3 lrs x 2 seeds (each lr twice)
+    assert len(sizes["paper-main"]) == 3 * 7 * 2 * 3 * 2
     pairs = {(r.obs_space, r.encoder) for r in sizes["paper-main"]}
     assert pairs == {
         ("rgb", "resnet50"),
@@ -36,8 +37,14 @@ def test_presets_expand_and_validate():
         ("pointcloud", "spunet34"),
     }
     assert {r.demos for r in sizes["paper-sample-efficiency"]} == {10, 25, 100}
-    assert all(r.preset == "paper" and r.eval_episodes == 400 for r in sizes["paper-main"])
-    assert len(sizes["paper-generalization"][0].perturbations) == 20
+    main_grid = load_grid("paper-main")
+    assert all(r.preset == "paper" and r.demos == 1000 for r in sizes["paper-main"])
+    assert {len(main_grid.evaluations(r)) for r in sizes["paper-main"]} == {2}  # last and best-on-validation
+    assert {s.episodes for r in sizes["paper-main"] for s in main_grid.evaluations(r)} == {400}
+    generalization = load_grid("paper-generalization")
+    assert len(generalization.perturbations) == 20 and generalization.checkpoints_from
+    # an evaluation-only grid names runs of the training grid: the same training identities
+    assert {r.run_id for r in sizes["paper-generalization"]} <= {r.run_id for r in sizes["paper-main"]}
     quick = sizes["quick"]
     assert {"rgb", "rgbd", "pointcloud"} <= {r.obs_space for r in quick}
 
@@ -69,8 +76,11 @@ def test_run_id_is_a_hash_of_the_resolved_config():
         ({"obs_spaces": ["pointcloud"], "encoders": ["pointnet", "resnet18"]}, ["resnet18", "accepts none"]),
         ({"policies": ["obs_vqbet"]}, ["obs_vqbet", "obs_act", "obs_diffusion"]),
         ({"preset": "huge"}, ["huge", "paper", "cpu", "tiny"]),
-        ({"stepz": 3}, ["stepz", "steps", "epochs"]),
-        ({"epochs": 3}, ["exactly one", "steps", "epochs"]),
+        ({"stepz": 3}, ["stepz", "steps", "demo_epochs"]),
+        ({"epochs": 3}, ["`epochs` is ambiguous", "demo_epochs", "frame_epochs"]),
+        ({"demo_epochs": 3}, ["exactly one", "steps", "samples", "demo_epochs", "one randomly sampled frame"]),
+        ({"steps": {"obs_diffusion": 3}}, ["obs_diffusion", "valid choices: obs_act"]),
+        ({"batch_size": {"obs_act": 0}}, ["batch_size of obs_act", ">= 1"]),
         ({"perturbations": ["lighting:0.3"]}, ["lighting:0.3", "camera_yaw:DEG", "light:I"]),
         ({"perturbations": ["background:2,0,0"]}, ["background:2,0,0", "[0, 1]"]),
         ({"variants": [{}, {"sampling": "pre"}]}, ["obs_act/rgb/resnet18", "sampling='pre'", "point-cloud design"]),
@@ -95,24 +105,68 @@ def test_bad_grid_fails_before_anything_runs(tmp_path, capsys):
 
 def test_dry_run_prints_the_plan_and_skips_finished_runs(tmp_path, capsys):
     grid = tmp_path / "g.yaml"
-    grid.write_text("tasks: [PushCube-v1]\nobs_spaces: [rgb, pointcloud]\nseeds: [1, 2]\nsteps: 5\npreset: tiny\n")
-    assert main(["run", str(grid), "--out", str(tmp_path), "--dry-run"]) == 0
-    text = capsys.readouterr().out
-    assert "4 runs, 0 already finished, 4 to run" in text
-    runs, todo = plan(load_grid(grid), tmp_path)
-    (tmp_path / "results.jsonl").write_text(
-        '{"run_id": "' + runs[0].run_id + '", "config": {}, "method": "m", "evaluations": {}}\n'
+    grid.write_text(
+        "tasks: [PushCube-v1]\nobs_spaces: [rgb, pointcloud]\nseeds: [1, 2]\nsteps: 5\npreset: tiny\neval_episodes: 3\n"
     )
     assert main(["run", str(grid), "--out", str(tmp_path), "--dry-run"]) == 0
-    assert "4 runs, 1 already finished, 3 to run" in capsys.readouterr().out
+    text = capsys.readouterr().out
+    assert "4 runs, 0 already trained, 4 to train; 0 of 4 test evaluations done" in text
+    runs = load_grid(grid).expand()
+    train = {
+        "kind": "train",
+        "run_id": runs[0].run_id,
+        "config": runs[0].config(),
+        "method": runs[0].method,
+        "task": runs[0].task,
+        "checkpoint": "ckpt",
+        "checkpoints": {"5": "ckpt"},
+        "train_steps": 5,
+    }
+    append_result(tmp_path / "results.jsonl", train)
+    assert main(["run", str(grid), "--out", str(tmp_path), "--dry-run"]) == 0
+    assert "4 runs, 1 already trained, 3 to train; 0 of 4 test evaluations done" in capsys.readouterr().out
     assert not (tmp_path / "demos").exists()
+
+
+def test_dry_run_counts_steps_and_samples_in_the_papers_units(capsys):
+    """paper-main: one sampled frame per demonstration per epoch -> ACT 500 x 1000 / 16, DP 1800 x 1000 / 64."""
+    assert main(["run", "paper-main", "--dry-run", "--out", "/nonexistent/out"]) == 0
+    text = capsys.readouterr().out
+    assert "batch 16  500 demo_epochs = 31250 steps, 500000 samples" in text
+    assert "batch 64  1800 demo_epochs = 28125 steps, 1800000 samples" in text
+    assert "total to do: 7481250 optimizer steps" in text
+    assert "demo_epochs = the paper's epochs: one randomly sampled frame per demonstration per epoch" in text
+    assert "h on a 2-core CPU" in text and "h on one H200 GPU" in text
+
+
+def test_training_identity_leaves_out_evaluation_and_checkpointing():
+    base = parse_grid(BASE)
+    more = parse_grid(
+        {
+            **BASE,
+            "eval_episodes": 99,
+            "perturbations": ["light:0.03"],
+            "episode_length": 20,
+            "checkpoints": 7,
+            "validation_episodes": 5,
+        }
+    )
+    assert [r.run_id for r in base.expand()] == [r.run_id for r in more.expand()]
+    run = base.expand()[0]
+    assert [s.perturbation for s in more.evaluations(run)] == ["none", "light:0.03"] * 2
+    assert {s.checkpoint for s in more.evaluations(run)} == {"last", "best"}
+    assert {s.eval_id for s in base.evaluations(run)} < {s.eval_id for s in more.evaluations(run)} or all(
+        s.episodes == 99 for s in more.evaluations(run)
+    )
+    assert EvalSpec(**base.evaluations(run)[0].config()).eval_id == base.evaluations(run)[0].eval_id
+    assert base.evaluations(run)[0].max_steps == 50 and more.evaluations(run)[0].max_steps == 20
 
 
 def test_train_command_is_stock_lerobot_train_with_the_run_fields(tmp_path):
     run = parse_grid(
         {**BASE, "encoders": {"rgb": ["resnet18"]}, "demos": [7], "seeds": [5], "policy_overrides": {"chunk_size": 3}}
     ).expand()[0]
-    cmd = train_command(run, tmp_path / "ds", tmp_path / "out", steps=10, device="cpu")
+    cmd = train_command(run, tmp_path / "ds", tmp_path / "out", steps=10, device="cpu", save_every=5)
     assert cmd[0].endswith("lerobot-train")
     for arg in (
         "--policy.type=obs_act",
@@ -120,6 +174,7 @@ def test_train_command_is_stock_lerobot_train_with_the_run_fields(tmp_path):
         "--policy.encoder=resnet18",
         "--seed=5",
         "--steps=10",
+        "--save_freq=5",
         "--dataset.episodes=[0,1,2,3,4,5,6]",
         "--policy.chunk_size=3",
         "--wandb.enable=false",

@@ -18,7 +18,7 @@ from lerobot_obsbench.bench.report import (
     summary_json,
     write_report,
 )
-from lerobot_obsbench.bench.results import append_result, read_results
+from lerobot_obsbench.bench.results import ResultsFormatError, append_result, by_kind, read_results
 from lerobot_obsbench.cli import main
 from lerobot_obsbench.stats import wilson_interval
 
@@ -72,8 +72,8 @@ def record(run_id, task, space, successes, episodes=10, seed=0, demos=10, lr=1e-
         "lr": lr,
         "demos": demos,
         "preset": "cpu",
-        "steps": 5,
-        "epochs": None,
+        "budget_unit": "steps",
+        "budget": 5,
         "image_size": 64,
         "policy_overrides": {},
     }
@@ -87,20 +87,84 @@ def record(run_id, task, space, successes, episodes=10, seed=0, demos=10, lr=1e-
     }
 
 
+def stored(*views) -> list[dict]:
+    """The results store's train and eval records (what `obsbench run` writes) of run views."""
+    out = []
+    for v in views:
+        out.append(
+            {
+                "kind": "train",
+                "run_id": v["run_id"],
+                "config": v["config"],
+                "method": v["method"],
+                "task": v["task"],
+                "checkpoint": f"runs/{v['run_id']}/last",
+            }
+        )
+        for name, summary in v["evaluations"].items():
+            out.append(
+                {
+                    "kind": "eval",
+                    "eval_id": f"{v['run_id']}:{name}",
+                    "run_id": v["run_id"],
+                    "checkpoint": "last",
+                    "split": "test",
+                    "perturbation": name,
+                    **summary,
+                }
+            )
+    return out
+
+
 def test_results_store_reports_corrupted_lines_and_never_merges_lines(tmp_path):
     path = tmp_path / "results.jsonl"
-    append_result(path, record("a", "T", "rgb", 3))
+    train_a, eval_a = stored(record("a", "T", "rgb", 3))
+    append_result(path, train_a)
     with open(path, "a") as f:
-        f.write('{"run_id": "b", "config": {')  # a kill in the middle of a write
-    append_result(path, record("c", "T", "rgb", 4))
+        f.write('{"kind": "eval", "run_id": "a", "config": {')  # a kill in the middle of a write
+    append_result(path, eval_a)
     with open(path, "a") as f:
-        f.write('{"no_id": 1}\n')
+        f.write('{"kind": "eval", "no_id": 1}\n')
     warnings = []
     records = read_results(path, warn=warnings.append)
-    assert [r["run_id"] for r in records] == ["a", "c"]
+    assert records == [train_a, eval_a]
     assert len(warnings) == 2
     assert "results.jsonl:2: corrupted results line skipped" in warnings[0]
-    assert "results.jsonl:4" in warnings[1] and "run_id" in warnings[1]
+    assert "results.jsonl:4" in warnings[1] and "eval_id" in warnings[1]
+
+
+def test_results_of_version_0_1_are_refused_with_the_conversion_command(tmp_path, capsys):
+    """0.1 wrote one record per run with its evaluations; `obsbench convert-results` keeps every number."""
+    path = tmp_path / "results.jsonl"
+    old = record(
+        "0123456789abcdef", "PushCube-v1", "rgb", 3, evaluations={"light:0.03": {"successes": 1, "episodes": 10}}
+    )
+    old["config"] = {
+        **{k: v for k, v in old["config"].items() if k not in ("budget_unit", "budget")},
+        "steps": 5,
+        "epochs": None,
+        "batch_size": 4,
+        "cameras": ["base_camera"],
+        "control_mode": "pd_ee_delta_pose",
+        "eval_episodes": 10,
+        "perturbations": ["light:0.03"],
+    }
+    old.update(checkpoint="/runs/0123/train/checkpoints/last/pretrained_model", train_steps=5)
+    path.write_text(json.dumps(old) + "\n")
+    with pytest.raises(ResultsFormatError, match="lerobot-obsbench 0.1.*obsbench convert-results"):
+        read_results(path)
+    assert main(["report", str(path)]) == 2
+    assert "obsbench convert-results" in capsys.readouterr().err
+    assert main(["convert-results", str(path)]) == 0
+    records = read_results(path)
+    (train,) = by_kind(records, "train")
+    assert train["config"]["budget_unit"] == "steps" and train["config"]["budget"] == 5
+    assert train["checkpoint"] == old["checkpoint"] and train["upgraded_from"] == old["run_id"]
+    evals = {r["perturbation"]: r for r in by_kind(records, "eval")}
+    assert (evals["none"]["successes"], evals["light:0.03"]["successes"]) == (3, 1)
+    assert all(r["run_id"] == train["run_id"] and r["checkpoint"] == "last" for r in evals.values())
+    assert (tmp_path / "results.jsonl.v1").read_text() == json.dumps(old) + "\n"
+    assert main(["report", str(path)]) == 0
 
 
 def test_seeds_pool_into_one_wilson_interval():
@@ -133,7 +197,7 @@ def test_report_files(tmp_path):
     ]
     published = tmp_path / "paper.csv"
     published.write_text("task,ResNet50\nT1,0.25\nT9,0.5\n")
-    report = build_report(records, read_published(published), published_name="paper")
+    report = build_report(stored(*records), read_published(published), published_name="paper")
     paths = write_report(report, tmp_path / "rep")
     md = paths["markdown"].read_text()
     assert "**0.80 [" in md and "<u>0.20 [" in md  # T1: pointcloud best (bold), rgb second (underlined)
@@ -165,3 +229,51 @@ def test_report_cli_with_published_table_only(tmp_path, capsys):
     table.write_text("task,A\nt1,x\n")
     assert main(["report", "--table", str(table)]) == 2
     assert "t.csv:2" in capsys.readouterr().err
+
+
+def _per_seed(outcomes: str, lengths: list[int]) -> dict:
+    return {"seeds": list(range(len(outcomes))), "success": outcomes, "length": lengths}
+
+
+def test_blind_control_marks_and_per_seed_agreement(tmp_path):
+    """▲ only where the interval clears the blind control's; agreement counted seed by seed against nominal."""
+    n = 20
+
+    def run(run_id, space, successes, camera=None):
+        r = record(run_id, "T", space, successes, episodes=n)
+        outcomes = "1" * successes + "." * (n - successes)
+        r["evaluations"]["none"]["per_seed"] = _per_seed(outcomes, [5] * successes + [50] * (n - successes))
+        if camera is not None:
+            r["evaluations"]["camera_yaw:10"] = {
+                "successes": camera[0].count("1"),
+                "episodes": n,
+                "per_seed": _per_seed(camera[0], camera[1]),
+            }
+        return r
+
+    same = ("1" * 3 + "." * 17, [5] * 3 + [50] * 17)
+    records = [
+        run("b", "none", 3, camera=same),  # the blind control repeats every episode
+        run("p", "pointcloud", 16, camera=("1" * 12 + "." * 8, [6] * 12 + [50] * 8)),
+        run("r", "rgb", 6),  # overlaps the blind control
+    ]
+    report = build_report(stored(*records))
+    blind = report["checks"]["beats_blind"]["T"]
+    assert blind == {"obs_act/pointcloud/e": True, "obs_act/rgb/e": False}
+    assert wilson_interval(16, n)[0] > wilson_interval(3, n)[1] and wilson_interval(6, n)[0] < wilson_interval(3, n)[1]
+    md = write_report(report, tmp_path / "rep")["markdown"].read_text()
+    assert "0.80 [0.58, 0.92] (16/20) ▲**" in md and "0.30 [0.15, 0.52] (6/20)</u>" in md
+    agreement = report["checks"]["agreement"]
+    assert agreement["T | obs_act/none/e | camera_yaw:10"] == {
+        "success": 3,
+        "nominal_success": 3,
+        "same_outcome": 20,
+        "identical": 20,
+        "episodes": 20,
+    }
+    moved = agreement["T | obs_act/pointcloud/e | camera_yaw:10"]
+    # 4 successes lost; the 12 kept took one step more, so only the 4 failures stayed identical
+    assert (moved["same_outcome"], moved["identical"]) == (16, 4)
+    assert (
+        "| T | obs_act/pointcloud/e | camera_yaw:10 | 0.60 [0.39, 0.78] (12/20) | 0.80 (16/20) | 16/20 | 4/20 |" in md
+    )

@@ -1,5 +1,12 @@
-"""End to end: a grid of 4 tiny runs (demos -> lerobot-train -> eval incl. a perturbation -> record -> report),
-killed mid-way and resumed, ends with exactly one record per run. Needs the simulator: slow."""
+"""End to end on the simulator (slow): grids of tiny runs trained with stock lerobot-train and evaluated.
+
+- a grid killed mid-way resumes to exactly one train record per run and one eval record per evaluation;
+- adding a perturbation and episodes to a finished grid evaluates its checkpoints and trains nothing;
+- a run killed mid-training resumes from its last checkpoint (LeRobot's training state); a run killed
+  mid-evaluation keeps its checkpoint;
+- the Ray engine (a local instance, loopback only) gives the local engine's records and resumes after the driver
+  is killed.
+"""
 
 from __future__ import annotations
 
@@ -14,7 +21,8 @@ from pathlib import Path
 import pytest
 
 from lerobot_obsbench.bench.grid import load_grid
-from lerobot_obsbench.bench.results import read_results
+from lerobot_obsbench.bench.results import by_kind, read_results
+from lerobot_obsbench.bench.units import resumable_step
 
 pytestmark = pytest.mark.slow
 BIN = Path(sys.executable).parent
@@ -35,9 +43,11 @@ eval_episodes: 2
 perturbations: [light:0.05]
 policy_overrides: {workspace: [-1, 1, -1, 1, 0.005, 1]}
 """
+# fields that differ between two executions of the same unit of work
+TIMING = ("timings", "wall_s", "finished_at", "checkpoint", "checkpoints", "versions", "trained_in")
 
 
-def obsbench(*args, **kwargs):
+def obsbench(*args, **kwargs) -> subprocess.Popen:
     return subprocess.Popen(
         [str(BIN / "obsbench"), *args],
         env=ENV,
@@ -49,57 +59,84 @@ def obsbench(*args, **kwargs):
     )
 
 
-def test_grid_runs_resumes_after_a_kill_and_reports(tmp_path):
-    grid_file = tmp_path / "tiny.yaml"
-    grid_file.write_text(GRID)
-    out = tmp_path / "out"
-    results = out / "results.jsonl"
-    expected = {r.run_id for r in load_grid(grid_file).expand()}
-    assert len(expected) == 4
+def quiet(path: Path) -> list[dict]:
+    return read_results(path, warn=lambda message: None)
 
-    first = obsbench("run", str(grid_file), "--out", str(out), start_new_session=True)
-    deadline = time.time() + 600
 
-    def next_run_training() -> bool:  # a run recorded, and the next one's training started: kill it mid-run
-        finished = {r["run_id"] for r in read_results(results, warn=lambda m: None)}
-        logs = [p for p in (out / "runs").glob("*/train.log") if p.parent.name not in finished]
-        return bool(finished) and bool(logs)
-
-    while time.time() < deadline and not next_run_training():
-        assert first.poll() is None, first.stdout.read()
+def wait_for(condition, proc: subprocess.Popen, timeout: float = 900) -> None:
+    deadline = time.time() + timeout
+    while not condition():
+        assert proc.poll() is None, proc.stdout.read()
+        assert time.time() < deadline, "timed out"
         time.sleep(0.2)
-    os.killpg(first.pid, signal.SIGKILL)
-    first.wait()
-    done_before = {r["run_id"] for r in read_results(results)}
-    assert 1 <= len(done_before) < 4
+
+
+def kill(proc: subprocess.Popen) -> None:
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+
+
+def finish(*args: str) -> str:
+    proc = obsbench(*args)
+    log, _ = proc.communicate(timeout=1800)
+    assert proc.returncode == 0, log
+    return log
+
+
+def comparable(records: list[dict]) -> dict:
+    """Records keyed by identity, without what differs between executions (timings, paths, versions)."""
+    return {r.get("eval_id", r["run_id"]): {k: v for k, v in r.items() if k not in TIMING} for r in records}
+
+
+@pytest.fixture(scope="module")
+def finished_grid(tmp_path_factory) -> Path:
+    """The tiny grid, killed while its second run trains, then resumed with two workers."""
+    root = tmp_path_factory.mktemp("grid")
+    (root / "tiny.yaml").write_text(GRID)
+    out = root / "out"
+    results = out / "results.jsonl"
+    first = obsbench("run", str(root / "tiny.yaml"), "--out", str(out), start_new_session=True)
+
+    def next_run_training() -> bool:  # a run trained, and another one's training started
+        trained = {r["run_id"] for r in by_kind(quiet(results), "train")}
+        logs = [p for p in (out / "runs").glob("*/train.log") if p.parent.name not in trained]
+        return bool(trained) and bool(logs)
+
+    wait_for(next_run_training, first)
+    kill(first)
+    trained_before = by_kind(quiet(results), "train")
+    assert 1 <= len(trained_before) < 4
     with open(results, "a") as f:
-        f.write('{"run_id": "truncated by a ki')  # what a kill during a write would leave
-
-    second = obsbench("run", str(grid_file), "--out", str(out), "--workers", "2")  # the process-pool path
-    log, _ = second.communicate(timeout=900)
-    assert second.returncode == 0, log
-    assert f"4 runs, {len(done_before)} already finished" in log
+        f.write('{"kind": "eval", "run_id": "truncated by a ki')  # what a kill during a write would leave
+    log = finish("run", str(root / "tiny.yaml"), "--out", str(out), "--workers", "2")  # the process-pool path
+    assert f"4 runs, {len(trained_before)} already trained" in log
     assert "corrupted results line skipped" in log
+    return root
 
-    records = read_results(results, warn=lambda m: None)
-    assert sorted(r["run_id"] for r in records) == sorted(expected)  # exactly one record per run
-    for r in records:
-        assert set(r["evaluations"]) == {"none", "light:0.05"}
-        nominal = r["evaluations"]["none"]
-        assert nominal["episodes"] == 2 and 0 <= nominal["successes"] <= 2
-        assert Path(r["checkpoint"], "model.safetensors").is_file()
-        assert r["versions"]["lerobot"] == "0.4.4" and r["timings"]["train_s"] > 0
-    # no leftovers: one run directory per record
-    assert {p.name for p in (out / "runs").iterdir()} == expected
+
+def test_grid_resumes_after_a_kill_to_exactly_one_record_per_unit(finished_grid):
+    out = finished_grid / "out"
+    grid = load_grid(finished_grid / "tiny.yaml")
+    records = quiet(out / "results.jsonl")
+    trains, evals = by_kind(records, "train"), by_kind(records, "eval")
+    assert sorted(r["run_id"] for r in trains) == sorted(r.run_id for r in grid.expand())
+    expected = {s.eval_id for r in grid.expand() for s in grid.evaluations(r)}
+    assert sorted(r["eval_id"] for r in evals) == sorted(expected)  # no evaluation twice
+    for r in evals:
+        assert r["episodes"] == 2 and 0 <= r["successes"] <= 2 and r["split"] == "test"
+        assert len(r["per_seed"]["success"]) == 2
+    for r in trains:
+        assert Path(r["checkpoint"], "model.safetensors").is_file() and r["versions"]["lerobot"] == "0.4.4"
+    assert {p.name for p in (out / "runs").iterdir()} == {r["run_id"] for r in trains}
 
     report = subprocess.run(
-        [str(BIN / "obsbench"), "report", str(results), "--json", str(tmp_path / "s.json")],
+        [str(BIN / "obsbench"), "report", str(out / "results.jsonl"), "--json", str(finished_grid / "s.json")],
         env=ENV,
         capture_output=True,
         text=True,
     )
     assert report.returncode == 0, report.stderr
-    summary = json.loads((tmp_path / "s.json").read_text())["results"]
+    summary = json.loads((finished_grid / "s.json").read_text())["results"]
     assert set(summary) == {
         "obs_act/rgb/resnet18",
         "obs_act/pointcloud/pointnet",
@@ -107,3 +144,74 @@ def test_grid_runs_resumes_after_a_kill_and_reports(tmp_path):
         "obs_diffusion/pointcloud/pointnet",
     }
     assert (out / "report" / "report.html").is_file() and (out / "report" / "generalization_light.png").is_file()
+
+
+def test_more_evaluations_train_nothing(finished_grid):
+    out = finished_grid / "out"
+    before = quiet(out / "results.jsonl")
+    logs = {p: p.stat().st_mtime_ns for p in (out / "runs").glob("*/train.log")}
+    (finished_grid / "more.yaml").write_text(
+        GRID.replace("eval_episodes: 2", "eval_episodes: 3").replace(
+            "perturbations: [light:0.05]", "perturbations: [light:0.05, camera_yaw:10]"
+        )
+    )
+    log = finish("run", str(finished_grid / "more.yaml"), "--out", str(out))
+    assert "4 runs, 4 already trained, 0 to train; 0 of 12 test evaluations done" in log
+    assert "trained " not in log  # no training line: evaluations only
+    after = quiet(out / "results.jsonl")
+    assert by_kind(after, "train") == by_kind(before, "train")
+    assert {p: p.stat().st_mtime_ns for p in logs} == logs  # no lerobot-train ran
+    new = [r for r in by_kind(after, "eval") if r not in before]
+    assert len(new) == 12 and {r["episodes"] for r in new} == {3}
+    assert {r["perturbation"] for r in new} == {"none", "light:0.05", "camera_yaw:10"}
+
+
+def test_killed_training_resumes_from_its_checkpoint_and_evaluation_keeps_it(tmp_path):
+    grid = tmp_path / "one.yaml"
+    grid.write_text(
+        GRID.replace("obs_spaces: [rgb, pointcloud]", "obs_spaces: [rgb]")
+        .replace("policies: [obs_act, obs_diffusion]", "policies: [obs_act]")
+        .replace("steps: 3", "steps: 200\ncheckpoints: 10")
+        .replace("eval_episodes: 2", "eval_episodes: 10")
+    )
+    out = tmp_path / "out"
+    (run,) = load_grid(grid).expand()
+    train_dir = out / "runs" / run.run_id / "train"
+    proc = obsbench("run", str(grid), "--out", str(out), start_new_session=True)
+    wait_for(lambda: (resumable_step(train_dir) or 0) >= 20, proc)  # killed after a checkpoint, mid-training
+    kill(proc)
+    saved = resumable_step(train_dir)
+    assert 20 <= saved < 200
+    # restarted: LeRobot resumes from that step; then killed during the (10-episode) evaluation
+    proc = obsbench("run", str(grid), "--out", str(out), start_new_session=True)
+    wait_for(lambda: any(p.read_text().startswith('{"done": 1') for p in out.glob("runs/*/eval/*.progress")), proc)
+    kill(proc)
+    (train,) = by_kind(quiet(out / "results.jsonl"), "train")
+    assert train["resumed_from"] == saved and resumable_step(train_dir) == 200
+    assert f"resuming at step {saved}" in (out / "runs" / run.run_id / "train.log").read_text()
+    assert json.loads((train_dir / "checkpoints" / "last" / "training_state" / "training_step.json").read_text()) == {
+        "step": 200
+    }
+    assert by_kind(quiet(out / "results.jsonl"), "eval") == []
+    assert Path(train["checkpoint"], "model.safetensors").is_file()  # the kill during evaluation kept it
+    log = finish("run", str(grid), "--out", str(out))
+    assert "1 already trained, 0 to train" in log and "trained " not in log
+    assert len(by_kind(quiet(out / "results.jsonl"), "eval")) == 2
+
+
+def test_ray_engine_gives_the_local_records_and_resumes_after_the_driver_is_killed(finished_grid, tmp_path):
+    """A local Ray instance started by the driver (loopback only). One thread per unit in both engines, so the
+    trained weights, and with them the evaluations, are the same."""
+    grid = tmp_path / "tiny.yaml"  # the finished grid's runs, saving only the final checkpoint: a run killed
+    grid.write_text(GRID + "checkpoints: 1\n")  # mid-training restarts from step 0, as in the local engine
+    local, ray = tmp_path / "local", tmp_path / "ray"
+    finish("run", str(grid), "--out", str(local), "--threads", "1")
+    proc = obsbench("run", str(grid), "--out", str(ray), "--engine", "ray", "--threads", "1", start_new_session=True)
+    wait_for(lambda: by_kind(quiet(ray / "results.jsonl"), "train"), proc, timeout=600)
+    kill(proc)
+    subprocess.run([str(BIN / "ray"), "stop", "--force"], env=ENV, capture_output=True, timeout=120)  # its instance
+    done = {r["run_id"] for r in by_kind(quiet(ray / "results.jsonl"), "train")}
+    assert 1 <= len(done) < 4
+    log = finish("run", str(grid), "--out", str(ray), "--engine", "ray", "--threads", "1")
+    assert f"{len(done)} already trained" in log
+    assert comparable(quiet(ray / "results.jsonl")) == comparable(quiet(local / "results.jsonl"))

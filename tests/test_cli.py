@@ -44,7 +44,14 @@ def test_preset_flags_parse_back(capsys):
     out = capsys.readouterr().out.split()
     assert "--policy.down_dims=[64,128,256]" in out and "--policy.encoder=resnet18" in out
     assert "--policy.encoder=resnet18" not in preset_args("cpu", "obs_act", "pointcloud")
-    assert preset_args("paper", "obs_act", "rgb") == []
+    # the paper preset keeps the defaults' model sizes: it sets only the official protocol's fields
+    assert sorted(preset_args("paper", "obs_act", "rgb")) == [
+        "--policy.action_loss=mse",
+        "--policy.image_input_size=224",
+        "--policy.optimizer_grad_clip_norm=0.5",
+        "--policy.scheduler_pct_start=0.1",
+        "--policy.zero_init_extra_channels=True",
+    ]
     with pytest.raises(ValueError, match="Unknown preset"):
         preset_args("gpu", "obs_act", "rgb")
 

@@ -24,7 +24,7 @@ from tests.helpers import CAM, frame_batch
 
 
 def test_registry_declares_spaces_and_refuses_wrong_pairs():
-    assert set(available_encoders()) == {"resnet18", "resnet50", "vit_b", "multivit_b", "pointnet", "spunet34"}
+    assert set(available_encoders()) == {"resnet18", "resnet50", "vit_b", "multivit_b", "pointnet", "spunet34", "blind"}
     assert available_encoders("pointcloud") == ["pointnet", "spunet34"]
     assert available_encoders("rgbd") == ["multivit_b", "resnet18", "resnet50", "vit_b"]
     assert "pointnet" not in available_encoders("rgb") and "multivit_b" not in available_encoders("rgb")
@@ -48,14 +48,13 @@ def test_registry_states_its_contract():
         "pointnet",
     ]
     # options come from the builder's signature; a typo is refused, naming the accepted ones
-    assert encoder_info("pointnet").options == ("point_features", "sampling", "num_tokens", "knn")
-    with pytest.raises(
-        TypeError,
-        match=r"'pointnet' takes no option\(s\) \['num_token'\]; it accepts: point_features, "
-        "sampling, num_tokens, knn",
-    ):
+    options = "point_features, sampling, num_tokens, knn, position_scale, pipeline, global_head"
+    assert ", ".join(encoder_info("pointnet").options) == options
+    with pytest.raises(TypeError, match=rf"'pointnet' takes no option\(s\) \['num_token'\]; it accepts: {options}"):
         make_encoder("pointnet", "pointcloud", num_token=64)
-    with pytest.raises(TypeError, match=r"'resnet18' takes no option\(s\) \['knn'\]; it accepts: pretrained"):
+    with pytest.raises(
+        TypeError, match=r"'resnet18' takes no option\(s\) \['knn'\]; it accepts: pretrained, input_size, zero_extra"
+    ):
         encoder_output("resnet18", "rgb", knn=4)
 
     def build(obs_space, output, dim):

@@ -23,7 +23,7 @@ from lerobot.policies.diffusion.modeling_diffusion import DiffusionModel
 
 from lerobot_obsbench import patches
 from lerobot_obsbench.policies import ObsACTConfig, ObsDiffusionConfig
-from lerobot_obsbench.presets import PRESETS
+from lerobot_obsbench.presets import model_sizes
 from lerobot_obsbench.schema import ACTION_KEY, ENV_STATE_KEY, STATE_KEY, image_key
 from lerobot_obsbench.spaces import IMAGENET_MEAN, IMAGENET_STD
 from tests.helpers import CAM, first_batch, training_setup
@@ -55,7 +55,7 @@ def test_obs_act_gives_stock_act_loss(tiny_dataset):
             pretrained_backbone_weights=None,
             device="cpu",
             n_action_steps=policy.config.n_action_steps,
-            **PRESETS["tiny"]["obs_act"],
+            **model_sizes("tiny", "obs_act"),
         )
     )
     own = policy.state_dict()
@@ -104,7 +104,7 @@ def test_obs_diffusion_denoiser_and_loss_are_stock_diffusion(tiny_dataset):
             },
             output_features=policy.config.output_features,
             device="cpu",
-            **PRESETS["tiny"]["obs_diffusion"],
+            **model_sizes("tiny", "obs_diffusion"),
         )
     )
     stock.unet.load_state_dict(model.unet.state_dict(), strict=True)

@@ -1,10 +1,22 @@
 """Benchmark grid files: YAML naming tasks x observation spaces x encoders x policies x seeds x learning rates x
-demo counts, the training budget and the evaluation (episodes, zero-shot perturbations).
+demo counts, the training budget, and the evaluations (episodes, episode budget, zero-shot perturbations,
+checkpoint selection).
 
 `load_grid(path_or_preset)` validates everything before anything runs (unknown task, space, encoder, policy,
-perturbation or field: a `GridError` listing the valid choices) and `Grid.expand()` gives one `RunSpec` per
-training run. A run's identity is the SHA-256 of its resolved config (`RunSpec.run_id`): the results store
-skips runs whose id it already holds, so editing a grid only adds the runs that changed.
+perturbation or field: a `GridError` listing the valid choices). `Grid.expand()` gives one `RunSpec` per
+training run and `Grid.evaluations(run)` the `EvalSpec`s of its test evaluations.
+
+Identity: a run is what it trains (`RunSpec.run_id`, the SHA-256 of the training config); an evaluation is a
+record against a run (`EvalSpec.eval_id`: run id + checkpoint, seed split, episodes, perturbation, episode
+budget). Adding a perturbation or episodes to a finished grid evaluates the existing checkpoints and trains
+nothing; how often checkpoints are saved is not part of a run's identity (it does not change the weights).
+
+Training budgets, exactly one per policy, each a number or a mapping policy -> number:
+- `steps`: optimizer steps;
+- `samples`: training samples (steps x batch size);
+- `demo_epochs`: the paper's epochs — one randomly sampled frame per demonstration per epoch, so
+  steps = ceil(demo_epochs x demos / batch size);
+- `frame_epochs`: passes over every frame of every demonstration (steps depend on the episodes' lengths).
 """
 
 from __future__ import annotations
@@ -23,19 +35,30 @@ from lerobot_obsbench.envs.maniskill import DEFAULT_CONTROL_MODE
 from lerobot_obsbench.envs.perturbations import parse_perturbation
 from lerobot_obsbench.envs.task import TASKS, task_spec
 from lerobot_obsbench.presets import PRESETS, preset_encoder, preset_overrides
-from lerobot_obsbench.schema import OBS_SPACES, POLICY_TYPES
+from lerobot_obsbench.schema import BLIND_SPACES, OBS_SPACES, POLICY_TYPES
 
 # Preset grids ship inside the package (package data), so `obsbench run quick` works from any install.
 PRESET_GRIDS = resources.files("lerobot_obsbench.bench") / "grids"
+BUDGET_UNITS = {
+    "steps": "optimizer steps",
+    "samples": "training samples (optimizer steps x batch size)",
+    "demo_epochs": "the paper's epochs: one randomly sampled frame per demonstration per epoch",
+    "frame_epochs": "passes over every frame of every demonstration",
+}
 
 
 class GridError(ValueError):
     """A grid file names something that does not exist or does not fit together."""
 
 
+def _digest(config: dict) -> str:
+    canonical = json.dumps(config, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(canonical.encode()).hexdigest()[:16]
+
+
 @dataclass(frozen=True)
 class RunSpec:
-    """One training run (then its evaluations): everything that determines its result."""
+    """One training run: everything that determines the trained weights."""
 
     task: str
     obs_space: str
@@ -46,26 +69,22 @@ class RunSpec:
     demos: int
     preset: str
     batch_size: int
-    steps: int | None  # optimizer steps; None = derived from `epochs` and the demo frames at run time
-    epochs: float | None
+    budget_unit: str  # one of BUDGET_UNITS
+    budget: float
     image_size: int
     cameras: tuple[str, ...]
     control_mode: str
-    eval_episodes: int
-    perturbations: tuple[str, ...]
     policy_overrides: tuple[tuple[str, object], ...] = ()
 
     def config(self) -> dict:
         data = asdict(self)
         data["cameras"] = list(self.cameras)
-        data["perturbations"] = list(self.perturbations)
         data["policy_overrides"] = dict(self.policy_overrides)
         return data
 
     @property
     def run_id(self) -> str:
-        canonical = json.dumps(self.config(), sort_keys=True, separators=(",", ":"), default=str)
-        return hashlib.sha256(canonical.encode()).hexdigest()[:16]
+        return _digest(self.config())
 
     @property
     def method(self) -> str:
@@ -77,13 +96,45 @@ class RunSpec:
         """Runs sharing this key train on (a prefix of) the same demonstration dataset."""
         return f"{self.task}-{self.image_size}px-{'+'.join(self.cameras)}-{self.control_mode}"
 
+    def steps(self, demo_frames: int | None = None) -> int:
+        """Optimizer steps of the budget; `demo_frames` (frames in the run's demonstrations) is needed for
+        frame_epochs only."""
+        if self.budget_unit == "steps":
+            return max(1, int(self.budget))
+        if self.budget_unit == "samples":
+            return max(1, math.ceil(self.budget / self.batch_size))
+        if self.budget_unit == "demo_epochs":
+            return max(1, math.ceil(self.budget * self.demos / self.batch_size))
+        if demo_frames is None:
+            raise ValueError("frame_epochs budgets need the demonstrations' frame count")
+        return max(1, math.ceil(self.budget * demo_frames / self.batch_size))
+
     @classmethod
     def from_config(cls, config: dict) -> RunSpec:
         data = dict(config)
         data["cameras"] = tuple(data["cameras"])
-        data["perturbations"] = tuple(data["perturbations"])
         data["policy_overrides"] = tuple(sorted(data.get("policy_overrides", {}).items()))
         return cls(**data)
+
+
+@dataclass(frozen=True)
+class EvalSpec:
+    """One evaluation of a run's checkpoint: `checkpoint` is "last", "best" (the best on the validation seeds)
+    or "step:N"; `split` the seed list ("test": 0, 1, ...; "validation": 10000, ...)."""
+
+    run_id: str
+    checkpoint: str
+    split: str
+    episodes: int
+    perturbation: str  # "none" or kind:value
+    max_steps: int  # episode budget
+
+    def config(self) -> dict:
+        return asdict(self)
+
+    @property
+    def eval_id(self) -> str:
+        return _digest(self.config())
 
 
 def _as_list(value, name: str) -> list:
@@ -115,30 +166,50 @@ class Grid:
     demos: list[int]
     preset: str = "cpu"
     encoders: dict[str, list[str]] = field(default_factory=dict)  # obs_space -> encoders
-    batch_size: int = 32
-    steps: int | dict[str, int] | None = None
-    epochs: float | dict[str, float] | None = None
+    # training budget: exactly one unit per policy (module docstring); a number or a mapping policy -> number
+    steps: float | dict[str, float] | None = None
+    samples: float | dict[str, float] | None = None
+    demo_epochs: float | dict[str, float] | None = None
+    frame_epochs: float | dict[str, float] | None = None
+    batch_size: int | dict[str, int] = 32
+    # evenly spaced checkpoints saved during training (for resuming and for checkpoint selection)
+    checkpoints: int | dict[str, int] = 4
+    # > 0: every checkpoint is evaluated on this many validation episodes and the best one is also evaluated
+    # on the test seeds (the report shows it by default); 0: the last checkpoint only
+    validation_episodes: int = 0
     image_size: int = 128
     cameras: list[str] = field(default_factory=lambda: ["base_camera"])
     control_mode: str = DEFAULT_CONTROL_MODE
     eval_episodes: int = 50
+    # steps per evaluation episode; None: each task's own budget
+    episode_length: int | None = None
     perturbations: list[str] = field(default_factory=list)
     policy_overrides: dict[str, object] = field(default_factory=dict)
     variants: list[dict[str, object]] = field(default_factory=lambda: [{}])  # extra --policy.* sets, one axis
+    # evaluate the checkpoints another grid trained (its output directory) instead of training
+    checkpoints_from: str | None = None
     description: str = ""
 
-    def budget(self, policy: str) -> tuple[int | None, float | None]:
-        def pick(value):
-            return value.get(policy) if isinstance(value, dict) else value
+    def per_policy(self, name: str, policy: str):
+        value = getattr(self, name)
+        return value.get(policy) if isinstance(value, dict) else value
 
-        return pick(self.steps), pick(self.epochs)
+    def budget(self, policy: str) -> tuple[str, float]:
+        given = {unit: self.per_policy(unit, policy) for unit in BUDGET_UNITS}
+        given = {unit: value for unit, value in given.items() if value is not None}
+        if len(given) != 1:
+            raise GridError(
+                f"{self.name}: give exactly one training budget for {policy}, as a number or a mapping "
+                f"policy -> number: " + "; ".join(f"`{u}` ({what})" for u, what in BUDGET_UNITS.items())
+            )
+        return next(iter(given.items()))
 
     def expand(self) -> list[RunSpec]:
         runs = []
         for task, space, policy, variant, demos, lr, seed in itertools.product(
             self.tasks, self.obs_spaces, self.policies, self.variants, self.demos, self.learning_rates, self.seeds
         ):
-            steps, epochs = self.budget(policy)
+            unit, budget = self.budget(policy)
             overrides = {**self.policy_overrides, **variant}
             for encoder in self.encoders[space]:
                 runs.append(
@@ -151,27 +222,49 @@ class Grid:
                         lr=lr,
                         demos=demos,
                         preset=self.preset,
-                        batch_size=self.batch_size,
-                        steps=steps,
-                        epochs=epochs,
+                        batch_size=int(self.per_policy("batch_size", policy)),
+                        budget_unit=unit,
+                        budget=budget,
                         image_size=self.image_size,
                         cameras=tuple(self.cameras),
                         control_mode=self.control_mode,
-                        eval_episodes=self.eval_episodes,
-                        perturbations=tuple(self.perturbations),
                         policy_overrides=tuple(sorted(overrides.items())),
                     )
                 )
         return runs
 
+    def max_steps(self, run: RunSpec) -> int:
+        return int(self.episode_length or task_spec(run.task).max_steps)
 
-GRID_FIELDS = {f for f in Grid.__dataclass_fields__}
+    def test_checkpoints(self) -> tuple[str, ...]:
+        return ("last", "best") if self.validation_episodes else ("last",)
+
+    def evaluations(self, run: RunSpec) -> list[EvalSpec]:
+        """The run's test evaluations: each tested checkpoint, nominally and under every perturbation."""
+        return [
+            EvalSpec(run.run_id, checkpoint, "test", self.eval_episodes, perturbation, self.max_steps(run))
+            for checkpoint in self.test_checkpoints()
+            for perturbation in ("none", *self.perturbations)
+        ]
+
+    def validations(self, run: RunSpec, checkpoint_steps: list[int]) -> list[EvalSpec]:
+        """The validation evaluations that select the run's best checkpoint."""
+        if not self.validation_episodes:
+            return []
+        return [
+            EvalSpec(run.run_id, f"step:{step}", "validation", self.validation_episodes, "none", self.max_steps(run))
+            for step in checkpoint_steps
+        ]
+
+
+GRID_FIELDS = set(Grid.__dataclass_fields__)
+PER_POLICY = ("batch_size", "checkpoints", *BUDGET_UNITS)
 
 
 def _resolve_encoders(spec, spaces: list[str], preset: str) -> dict[str, list[str]]:
     """`encoders` may be omitted (the preset's choice per space), a list (each space takes the listed
     encoders that accept it; every listed encoder must fit some space) or a mapping space -> encoders (strict)."""
-    from lerobot_obsbench.encoders import available_encoders, check_encoder
+    from lerobot_obsbench.encoders import available_encoders, check_encoder, encoder_info
 
     if spec is None:
         return {s: [preset_encoder(preset, s)] for s in spaces}
@@ -191,31 +284,32 @@ def _resolve_encoders(spec, spaces: list[str], preset: str) -> dict[str, list[st
         return resolved
     names = _as_list(spec, "encoders")
     _choose(names, available_encoders(), "encoders")
-    resolved = {s: [n for n in names if s in _accepts(n)] for s in spaces}
-    for name in names:
-        if not any(name in resolved[s] for s in spaces):
-            raise GridError(
-                f"encoder {name!r} accepts none of the grid's obs_spaces {spaces} (it accepts "
-                f"{', '.join(_accepts(name))})"
-            )
+    resolved = {s: [n for n in names if s in encoder_info(n).spaces] for s in spaces}
     for space, chosen in resolved.items():
-        if not chosen:
+        if not chosen and space in BLIND_SPACES:
+            resolved[space] = [preset_encoder(preset, space)]  # the blind control needs no encoder listed
+        elif not chosen:
             raise GridError(
                 f"no listed encoder accepts obs_space {space!r}; encoders for it: "
                 f"{', '.join(available_encoders(space))}"
             )
+    for name in names:
+        if not any(name in resolved[s] for s in spaces):
+            raise GridError(
+                f"encoder {name!r} accepts none of the grid's obs_spaces {spaces} (it accepts "
+                f"{', '.join(encoder_info(name).spaces)})"
+            )
     return resolved
-
-
-def _accepts(name: str) -> tuple[str, ...]:
-    from lerobot_obsbench.encoders import encoder_info
-
-    return encoder_info(name).spaces
 
 
 def parse_grid(data: dict, name: str = "grid") -> Grid:
     if not isinstance(data, dict):
         raise GridError(f"{name}: a grid file is a YAML mapping of fields; got {type(data).__name__}")
+    if "epochs" in data:
+        raise GridError(
+            f"{name}: `epochs` is ambiguous; write `demo_epochs` (the paper's: one sampled frame per demonstration "
+            "per epoch) or `frame_epochs` (every frame of every demonstration), or `steps` / `samples`"
+        )
     unknown = sorted(set(data) - GRID_FIELDS)
     if unknown:
         raise GridError(f"{name}: unknown grid fields {unknown}; valid fields: {', '.join(sorted(GRID_FIELDS))}")
@@ -228,6 +322,9 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
     policies = _choose(_as_list(values.get("policies", ["obs_act"]), "policies"), list(POLICY_TYPES), "policies")
     preset = values.get("preset", "cpu")
     _choose([preset], list(PRESETS), "preset")
+    for key in PER_POLICY:
+        if isinstance(values.get(key), dict):
+            _choose(list(values[key]), list(policies), f"policies in {key}")
     grid = Grid(
         name=str(values["name"]),
         tasks=tasks,
@@ -240,31 +337,23 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
         encoders=_resolve_encoders(values.get("encoders"), spaces, preset),
         **{
             k: values[k]
-            for k in (
-                "batch_size",
-                "steps",
-                "epochs",
-                "image_size",
-                "cameras",
-                "control_mode",
-                "eval_episodes",
-                "perturbations",
-                "policy_overrides",
-                "variants",
-                "description",
-            )
+            for k in GRID_FIELDS
+            - {"name", "tasks", "obs_spaces", "policies", "seeds", "learning_rates", "demos", "preset", "encoders"}
             if k in values
         },
     )
     for policy in policies:
-        steps, epochs = grid.budget(policy)
-        if (steps is None) == (epochs is None):
-            raise GridError(
-                f"{name}: give exactly one training budget for {policy}: `steps` (optimizer steps) or "
-                "`epochs` (passes over the demos), as a number or a mapping policy -> number"
-            )
-    if min(grid.demos) < 1 or grid.eval_episodes < 1 or grid.batch_size < 1:
-        raise GridError(f"{name}: demos, eval_episodes and batch_size must be >= 1")
+        unit, budget = grid.budget(policy)
+        if not budget > 0:
+            raise GridError(f"{name}: the {unit} budget of {policy} must be > 0; got {budget}")
+        for key in ("batch_size", "checkpoints"):
+            value = grid.per_policy(key, policy)
+            if not isinstance(value, int) or value < 1:
+                raise GridError(f"{name}: {key} of {policy} must be a whole number >= 1; got {value!r}")
+    if min(grid.demos) < 1 or grid.eval_episodes < 1 or grid.validation_episodes < 0:
+        raise GridError(f"{name}: demos and eval_episodes must be >= 1, validation_episodes >= 0")
+    if grid.episode_length is not None and grid.episode_length < 1:
+        raise GridError(f"{name}: episode_length must be >= 1 (or omitted: each task's own budget)")
     for text in grid.perturbations:
         try:
             parse_perturbation(text)
@@ -296,7 +385,7 @@ def check_policy_configs(grid: Grid, name: str) -> None:
         seen.add(key)
         config_class = PreTrainedConfig.get_choice_class(run.policy)
         fields = {
-            **preset_overrides(run.preset, run.policy, run.obs_space),
+            **preset_overrides(run.preset, run.policy, run.obs_space, run.encoder),
             "encoder": run.encoder,
             **dict(run.policy_overrides),
         }
@@ -331,19 +420,3 @@ def load_grid(path_or_preset: str | Path) -> Grid:
     except yaml.YAMLError as err:
         raise GridError(f"{path}: not valid YAML: {err}") from None
     return parse_grid(data, name=path.name.removesuffix(".yaml"))
-
-
-# Rough 2-core CPU costs per training sample (cpu: measured on the quick grid at 64 px, ~0.25 s per batch of 16)
-# for `--dry-run` estimates only.
-SECONDS_PER_SAMPLE = {"tiny": 0.01, "cpu": 0.017, "paper": 0.4}
-DEMO_FRAMES_PER_EPISODE = 30
-ENV_STEPS_PER_SECOND = 15.0
-
-
-def estimate_seconds(run: RunSpec) -> float:
-    """Order-of-magnitude wall time of one run on a 2-core CPU (training + every evaluation)."""
-    steps = run.steps or math.ceil(run.epochs * run.demos * DEMO_FRAMES_PER_EPISODE / run.batch_size)
-    train = steps * run.batch_size * SECONDS_PER_SAMPLE[run.preset] * max(run.image_size / 64, 1) ** 2 + 20
-    evaluations = 1 + len(run.perturbations)
-    episode = task_spec(run.task).max_steps * 0.6 / ENV_STEPS_PER_SECOND
-    return train + evaluations * (run.eval_episodes * episode + 5)

@@ -5,6 +5,13 @@ Per task, the success rate of each method (columns) pools every training seed's 
 rates; Mean Rank ranks the methods on each task with competition ranking ("1224": tied methods share the best
 rank of their group, the next rank skips) and averages the ranks over tasks. A method missing on a task is
 left out of that task's ranking and mean (and marked).
+
+Beyond the paper, two checks that a method uses what it sees:
+- the blind control (obs_space `none`, same policy type): a method whose 95% interval lies entirely above the
+  blind control's on a task is marked ▲ there;
+- evaluation-only changes (camera moved, light, ...): per-seed agreement with the nominal evaluation of the same
+  checkpoint on the same seeds — how many episodes keep their outcome, and how many are identical (outcome and
+  length). A policy that ignores its observation repeats every episode exactly.
 """
 
 from __future__ import annotations
@@ -17,9 +24,11 @@ import json
 import math
 from collections import defaultdict
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 
 from lerobot_obsbench.envs.perturbations import NOMINAL_VALUE, parse_perturbation
+from lerobot_obsbench.schema import BLIND_SPACES
 from lerobot_obsbench.stats import wilson_interval
 
 # Config fields that, when they differ between runs of one method, become part of its column label.
@@ -66,11 +75,29 @@ def summarize(table: dict[str, dict[str, float]]) -> dict[str, dict]:
     }
 
 
+# The paper's tables, typed from its LaTeX source, ship with the package (`--table NAME`).
+PUBLISHED_TABLES = resources.files("lerobot_obsbench.bench") / "tables"
+
+
+def published_tables() -> list[str]:
+    return sorted(p.name.removesuffix(".csv") for p in PUBLISHED_TABLES.iterdir() if p.name.endswith(".csv"))
+
+
+def resolve_table(name_or_path: str | Path):
+    """A CSV path, or the packaged paper table of that name."""
+    path = Path(name_or_path)
+    if path.is_file():
+        return path
+    packaged = PUBLISHED_TABLES / f"{name_or_path}.csv"
+    if packaged.is_file():
+        return packaged
+    raise ReportError(f"no table {str(name_or_path)!r}: give a CSV path or one of {', '.join(published_tables())}")
+
+
 def read_published(path: Path) -> dict[str, dict[str, float]]:
     """A published table as CSV: first column the task, one column per method, success rates in [0, 1];
     empty cells are missing values."""
-    with open(path, newline="") as f:
-        rows = list(csv.reader(f))
+    rows = list(csv.reader(path.read_text().splitlines()))
     if len(rows) < 2 or len(rows[0]) < 2:
         raise ReportError(f"{path}: expected a header (task, method, ...) and at least one task row")
     methods = [m.strip() for m in rows[0][1:]]
@@ -96,6 +123,43 @@ def read_published(path: Path) -> dict[str, dict[str, float]]:
 
 
 # ---- own results -----------------------------------------------------------------------------------------
+
+CHECKPOINT_CHOICES = ("best", "last")
+CHECKPOINT_TEXT = {
+    "best": "best on the validation seeds (10000+, disjoint from the test seeds)",
+    "last": "the last checkpoint",
+}
+
+
+def run_views(records: list[dict], checkpoint: str = "best") -> list[dict]:
+    """One view per trained run from the results store's train and eval records: its config plus
+    `evaluations` {perturbation: eval record} of its test evaluations of `checkpoint` — "best" (the
+    best-on-validation checkpoint, where the run has one; else its last) or "last". Each view notes which
+    checkpoint it shows under "shown"."""
+    if checkpoint not in CHECKPOINT_CHOICES:
+        raise ReportError(f"checkpoint must be one of {CHECKPOINT_CHOICES}; got {checkpoint!r}")
+    tests = defaultdict(dict)  # run_id -> checkpoint -> perturbation -> record
+    for r in records:
+        if r["kind"] == "eval" and r["split"] == "test":
+            tests[r["run_id"]].setdefault(r["checkpoint"], {})[r["perturbation"]] = r
+    views = []
+    for r in records:
+        if r["kind"] != "train" or r["run_id"] not in tests:
+            continue
+        shown = checkpoint if checkpoint in tests[r["run_id"]] else "last"
+        if shown not in tests[r["run_id"]]:
+            continue
+        views.append(
+            {
+                "run_id": r["run_id"],
+                "config": r["config"],
+                "method": r["method"],
+                "task": r["task"],
+                "shown": shown,
+                "evaluations": tests[r["run_id"]][shown],
+            }
+        )
+    return views
 
 
 def method_labels(records: list[dict]) -> dict[str, str]:
@@ -140,6 +204,87 @@ def rates(cells: dict[str, dict[str, Cell]]) -> dict[str, dict[str, float]]:
     return {t: {m: c.rate for m, c in row.items()} for t, row in cells.items()}
 
 
+def _label_configs(records: list[dict]) -> dict[str, dict]:
+    """column label -> the config of (one of) its runs."""
+    labels = method_labels(records)
+    return {labels[r["run_id"]]: r["config"] for r in records}
+
+
+def beats_blind(records: list[dict], cells: dict[str, dict[str, Cell]]) -> dict[str, dict[str, bool]]:
+    """{task: {label: whether its 95% interval lies above the blind control's}} for methods that have a blind
+    control of their policy type on that task (the best-scoring one when there are several)."""
+    configs = _label_configs(records)
+    out: dict[str, dict[str, bool]] = {}
+    for task, row in cells.items():
+        blind = [m for m in row if configs[m]["obs_space"] in BLIND_SPACES]
+        for method, cell in row.items():
+            if method in blind:
+                continue
+            controls = [row[b] for b in blind if configs[b]["policy"] == configs[method]["policy"]]
+            if controls:
+                out.setdefault(task, {})[method] = cell.ci95[0] > max(c.ci95[1] for c in controls)
+    return out
+
+
+@dataclass
+class Agreement:
+    """Seed-by-seed comparison of an evaluation-only change with the nominal evaluation of the same checkpoints."""
+
+    changed: Cell  # successes under the change
+    nominal: Cell
+    same_outcome: int  # episodes whose success / failure is the nominal one
+    identical: int  # episodes with the nominal outcome and length
+
+
+def agreements(records: list[dict]) -> dict[tuple[str, str, str], Agreement]:
+    """{(task, label, perturbation): Agreement}, pooling the runs of each label (largest demo count)."""
+    labels = method_labels(records)
+    most = defaultdict(int)
+    for r in records:
+        most[r["task"]] = max(most[r["task"]], r["config"]["demos"])
+    counts: dict[tuple[str, str, str], list[int]] = defaultdict(lambda: [0, 0, 0, 0, 0])
+    for r in records:
+        nominal = r["evaluations"].get("none", {}).get("per_seed")
+        if r["config"]["demos"] != most[r["task"]] or nominal is None:
+            continue
+        for name, evaluation in r["evaluations"].items():
+            changed = evaluation.get("per_seed")
+            if name == "none" or changed is None or changed["seeds"] != nominal["seeds"]:
+                continue
+            pairs = list(zip(nominal["success"], changed["success"], nominal["length"], changed["length"], strict=True))
+            count = counts[(r["task"], labels[r["run_id"]], name)]
+            count[0] += changed["success"].count("1")
+            count[1] += nominal["success"].count("1")
+            count[2] += sum(a == b for a, b, _, _ in pairs)
+            count[3] += sum(a == b and la == lb for a, b, la, lb in pairs)
+            count[4] += len(pairs)
+    return {key: Agreement(Cell(c[0], c[4]), Cell(c[1], c[4]), c[2], c[3]) for key, c in sorted(counts.items())}
+
+
+def agreement_rows(found: dict[tuple[str, str, str], Agreement]):
+    header = [
+        "task",
+        "method",
+        "evaluation",
+        "success",
+        "nominal success",
+        "same outcome as nominal",
+        "identical episode (outcome and length)",
+    ]
+    rows = []
+    for (task, method, name), a in found.items():
+        lo, hi = a.changed.ci95
+        n = a.changed.episodes
+        cells = [
+            f"{a.changed.rate:.2f} [{lo:.2f}, {hi:.2f}] ({a.changed.successes}/{n})",
+            f"{a.nominal.rate:.2f} ({a.nominal.successes}/{n})",
+            f"{a.same_outcome}/{n}",
+            f"{a.identical}/{n}",
+        ]
+        rows.append((task, [(method, None), (name, None), *((c, None) for c in cells)]))
+    return header, rows
+
+
 # ---- rendering -------------------------------------------------------------------------------------------
 
 
@@ -160,9 +305,16 @@ def _summary_marks(summary: dict[str, dict], key: str, lower_is_better: bool) ->
     return _marks({m: sign * round(s[key], 2) for m, s in summary.items()})
 
 
-def table_rows(table: dict[str, dict[str, float]], cells: dict[str, dict[str, Cell]] | None = None):
-    """(header, rows) where each cell is (text, mark); the last two rows are Mean S.R. and Mean Rank."""
-    methods = sorted({m for row in table.values() for m in row})
+def table_rows(
+    table: dict[str, dict[str, float]],
+    cells: dict[str, dict[str, Cell]] | None = None,
+    blind: dict[str, dict[str, bool]] | None = None,
+    methods: list[str] | None = None,
+):
+    """(header, rows) where each cell is (text, mark); the last two rows are Mean S.R. and Mean Rank. `blind`
+    marks with ▲ the cells whose interval lies above the blind control's. Columns: `methods`, else in the order
+    the table names them (a published table keeps its own column order)."""
+    methods = methods or list(dict.fromkeys(m for row in table.values() for m in row))
     summary = summarize(table)
     n_tasks = len(table)
     rows = []
@@ -177,6 +329,8 @@ def table_rows(table: dict[str, dict[str, float]], cells: dict[str, dict[str, Ce
             if cells is not None:
                 lo, hi = cells[task][m].ci95
                 text += f" [{lo:.2f}, {hi:.2f}] ({cells[task][m].successes}/{cells[task][m].episodes})"
+            if blind and blind.get(task, {}).get(m):
+                text += " ▲"
             out.append((text, marks.get(m)))
         rows.append((task, out))
     for key, title, lower in (("mean_sr", "Mean S.R.", False), ("mean_rank", "Mean Rank", True)):
@@ -306,22 +460,52 @@ def _mean_over_tasks(cells: dict[str, dict[str, Cell]]) -> dict[str, float]:
 
 
 def build_report(
-    records: list[dict], published: dict[str, dict[str, float]] | None = None, published_name: str = "published"
+    results: list[dict],
+    published: dict[str, dict[str, float]] | None = None,
+    published_name: str = "published",
+    checkpoint: str = "best",
 ) -> dict:
-    """Everything the report shows: tables (header, rows), PNG figures and the JSON summary."""
+    """Everything the report shows: tables (header, rows), PNG figures and the JSON summary. `results`: the
+    results store's records; `checkpoint`: which checkpoint's test evaluations the tables show (`run_views`)."""
+    records = run_views(results, checkpoint)
     if not records and not published:
-        raise ReportError("nothing to report: no results records and no --table")
-    sections, figures, summary = [], {}, {}
+        raise ReportError("nothing to report: no evaluated runs in the results and no --table")
+    sections, figures, summary, checks = [], {}, {}, {}
     if records:
+        shown = sorted({r["shown"] for r in records})
+        checks["checkpoint"] = {s: sum(r["shown"] == s for r in records) for s in shown}
         cells = pooled_cells(records)
         table = rates(cells)
+        blind = beats_blind(records, cells)
         sections.append(
             (
-                "Success rate per task (held-out seeds, seeds pooled, 95% Wilson interval, successes/episodes)",
-                table_rows(table, cells),
+                "Success rate per task (held-out test seeds, seeds pooled, 95% Wilson interval, successes/episodes; "
+                "▲ = interval above the blind control's). Checkpoint shown: "
+                + ", ".join(f"{CHECKPOINT_TEXT[s]} ({n} runs)" for s, n in checks["checkpoint"].items()),
+                table_rows(table, cells, blind, methods=sorted({m for row in table.values() for m in row})),
             )
         )
         summary["results"] = summarize(table)
+        checks["beats_blind"] = blind
+        found = agreements(records)
+        if found:
+            sections.append(
+                (
+                    "Does the policy react to what it sees? Evaluation-only changes against the nominal "
+                    "evaluation of the same checkpoints, seed by seed",
+                    agreement_rows(found),
+                )
+            )
+            checks["agreement"] = {
+                f"{task} | {method} | {name}": {
+                    "success": a.changed.successes,
+                    "nominal_success": a.nominal.successes,
+                    "same_outcome": a.same_outcome,
+                    "identical": a.identical,
+                    "episodes": a.changed.episodes,
+                }
+                for (task, method, name), a in found.items()
+            }
         figures["success_by_task.png"] = ("Success rate per task", bar_chart(cells))
         for kind, series in perturbation_series(records).items():
             figures[f"generalization_{kind}.png"] = (
@@ -343,7 +527,7 @@ def build_report(
                     t: {**{f"{m} ({published_name})": v for m, v in published[t].items()}, **table[t]} for t in shared
                 }
                 sections.append((f"Side by side on the shared tasks ({', '.join(shared)})", table_rows(combined)))
-    return {"sections": sections, "figures": figures, "summary": summary}
+    return {"sections": sections, "figures": figures, "summary": summary, "checks": checks}
 
 
 def write_report(report: dict, out: Path, title: str = "OBSBench report", notes: str = "") -> dict[str, Path]:
@@ -358,7 +542,8 @@ def write_report(report: dict, out: Path, title: str = "OBSBench report", notes:
         body += [f"<h2>{html.escape(heading)}</h2>", html_table(header, rows)]
     legend = (
         "Best per row in bold, second underlined. Mean Rank: competition ranking per task (ties share the "
-        "best rank), averaged over tasks; * = the method lacks some tasks (means over its tasks)."
+        "best rank), averaged over tasks; * = the method lacks some tasks (means over its tasks). ▲: the "
+        "method's 95% interval lies entirely above its blind control's (obs_space none, same policy type)."
     )
     md += [legend, ""]
     body.append(f"<p>{html.escape(legend)}</p>")
@@ -382,10 +567,14 @@ def write_report(report: dict, out: Path, title: str = "OBSBench report", notes:
 
 
 def summary_json(report: dict) -> dict:
-    return {
+    """Mean S.R. / Mean Rank per method and source, plus the blind-control and agreement checks."""
+    out = {
         source: {
             m: {"mean_sr": round(s["mean_sr"], 4), "mean_rank": round(s["mean_rank"], 4), "tasks": s["tasks"]}
             for m, s in summary.items()
         }
         for source, summary in report["summary"].items()
     }
+    if report.get("checks"):
+        out["checks"] = report["checks"]
+    return out

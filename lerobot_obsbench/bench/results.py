@@ -1,18 +1,37 @@
-"""The results store: one JSON record per finished run, appended to a JSON-lines file.
+"""The results store: JSON lines, one record per finished unit of work, appended by one writer (the grid's
+driver).
 
-Only finished runs are written, each as one line flushed and fsynced before the next run is announced, so a
-kill leaves at most a truncated last line. Reading reports every unreadable line with its line number and
-skips it (the run it belonged to simply runs again), instead of dropping it silently.
+- `{"kind": "train", "run_id", "config", "method", "task", "train_steps", "samples", "checkpoints": {step:
+  path}, "checkpoint" (the last), "timings", "versions", "device", "finished_at"}` — one per trained run;
+- `{"kind": "eval", "eval_id", "run_id", "checkpoint" ("last" | "best" | "step:N"), "checkpoint_step", "split"
+  ("test" | "validation"), "perturbation", "episodes", "successes", "success_rate", "ci95", "sub_success",
+  "episode_length_mean", "per_seed", "max_steps", ...}` — one per evaluation of a run's checkpoint.
+
+Each record is one line, flushed and fsynced before the next is announced, so a kill leaves at most a truncated
+last line. Reading reports every unreadable line with its line number and skips it (its work simply runs
+again), instead of dropping it silently. Files written by lerobot-obsbench 0.1 (one record per run holding its
+evaluations) are refused with the command that converts them (`obsbench convert-results`).
 """
 
 from __future__ import annotations
 
 import json
 import os
+import shutil
 import sys
 from pathlib import Path
 
-REQUIRED = ("run_id", "config", "method", "evaluations")
+KINDS = ("train", "eval")
+REQUIRED = {
+    "train": ("run_id", "config", "method", "task", "checkpoint"),
+    "eval": ("eval_id", "run_id", "checkpoint", "split", "perturbation", "episodes", "successes"),
+}
+# fields of a 0.1 record's config that described its evaluations, not its training
+V1_EVAL_FIELDS = ("eval_episodes", "perturbations")
+
+
+class ResultsFormatError(ValueError):
+    """A results file in a format this version does not read."""
 
 
 def read_results(path: Path, warn=None) -> list[dict]:
@@ -30,10 +49,16 @@ def read_results(path: Path, warn=None) -> list[dict]:
         except json.JSONDecodeError as err:
             warn(
                 f"{path}:{number}: corrupted results line skipped ({err.msg} at column {err.colno}); "
-                "its run will be redone"
+                "its work will be redone"
             )
             continue
-        missing = [k for k in REQUIRED if not isinstance(record, dict) or k not in record]
+        if isinstance(record, dict) and "kind" not in record and "evaluations" in record:
+            raise ResultsFormatError(
+                f"{path} was written by lerobot-obsbench 0.1 (one record per run with its evaluations). Convert it "
+                f"once, keeping every checkpoint and evaluation: obsbench convert-results {path}"
+            )
+        kind = record.get("kind") if isinstance(record, dict) else None
+        missing = [k for k in REQUIRED.get(kind, ("kind",)) if k not in record]
         if missing:
             warn(f"{path}:{number}: results line without {missing} skipped")
             continue
@@ -54,3 +79,74 @@ def append_result(path: Path, record: dict) -> None:
         f.write(line.encode())
         f.flush()
         os.fsync(f.fileno())
+
+
+def by_kind(records: list[dict], kind: str) -> list[dict]:
+    return [r for r in records if r["kind"] == kind]
+
+
+def upgrade_v1(record: dict) -> list[dict]:
+    """A 0.1 record -> its train record and one eval record per evaluation (the last checkpoint, test seeds,
+    each task's own episode budget, which is what 0.1 ran)."""
+    from lerobot_obsbench.bench.grid import EvalSpec, RunSpec
+    from lerobot_obsbench.envs.task import task_spec
+
+    old = dict(record["config"])
+    for key in V1_EVAL_FIELDS:
+        old.pop(key, None)
+    steps, epochs = old.pop("steps", None), old.pop("epochs", None)
+    unit, budget = ("steps", steps) if steps is not None else ("frame_epochs", epochs)
+    run = RunSpec.from_config({**old, "budget_unit": unit, "budget": budget})
+    checkpoint = record["checkpoint"]
+    train = {
+        "kind": "train",
+        "run_id": run.run_id,
+        "config": run.config(),
+        "method": run.method,
+        "task": run.task,
+        "train_steps": record["train_steps"],
+        "samples": record["train_steps"] * run.batch_size,
+        "checkpoint": checkpoint,
+        "checkpoints": {str(record["train_steps"]): checkpoint},
+        "timings": {"train_s": record.get("timings", {}).get("train_s")},
+        "versions": record.get("versions", {}),
+        "device": record.get("device"),
+        "finished_at": record.get("finished_at"),
+        "upgraded_from": record["run_id"],
+    }
+    evals = []
+    for perturbation, summary in record["evaluations"].items():
+        spec = EvalSpec(run.run_id, "last", "test", summary["episodes"], perturbation, task_spec(run.task).max_steps)
+        evals.append(
+            {
+                "kind": "eval",
+                "eval_id": spec.eval_id,
+                **spec.config(),
+                "task": run.task,
+                "method": run.method,
+                "checkpoint_step": record["train_steps"],
+                **summary,
+            }
+        )
+    return [train, *evals]
+
+
+def convert_v1(path: Path) -> Path:
+    """Rewrite a 0.1 results file in the current format (the original is kept as `<name>.v1`)."""
+    path = Path(path)
+    converted = []
+    for number, line in enumerate(path.read_text().splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError:
+            print(f"{path}:{number}: corrupted line dropped", file=sys.stderr)
+            continue
+        converted += upgrade_v1(record) if "kind" not in record else [record]
+    backup = path.with_name(path.name + ".v1")
+    shutil.copy2(path, backup)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in converted))
+    os.replace(tmp, path)
+    return backup

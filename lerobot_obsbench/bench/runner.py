@@ -1,282 +1,429 @@
-"""`obsbench run GRID`: demos -> train (stock `lerobot-train`) -> evaluate -> one results record per run.
+"""`obsbench run GRID`: the grid's driver. It plans the units of work (`units.py`: demonstrations, training,
+evaluations), hands them to an engine (`engines.py`: a local process pool or Ray), appends each finished unit's
+record to OUT/results.jsonl, and prints live progress.
 
-Layout of the output directory:
+Resuming is by identity: a run whose train record exists is not trained again, an evaluation whose eval record
+exists is not run again; a run killed mid-training resumes from its last checkpoint (`units.train_unit`). A grid
+with `checkpoints_from` trains nothing: it evaluates the checkpoints another grid trained.
 
-    OUT/results.jsonl                 one JSON record per finished run (see `results.py`)
-    OUT/demos/<task>-<px>-<cams>-<ctrl>-<N>ep/   scripted demonstrations shared by every run of that task
-    OUT/runs/<run_id>/train/          lerobot-train's output_dir (checkpoint under checkpoints/last)
-    OUT/runs/<run_id>/train.log       lerobot-train's console output
-    OUT/runs/<run_id>/eval/<perturbation>.json   per-episode evaluation results
-
-Resuming: runs whose id is already in results.jsonl are skipped; any other run directory is a leftover of a
-killed run and is deleted before that run starts again, so a run is recorded once, from one clean attempt.
-
-Scale-out: `execute_run(config, dataset, out_dir, device)` is a plain top-level function of picklable
-arguments returning the record. Locally `run_grid` maps it over a process pool (`--workers`); an existing
-distributed engine can map the same function over a cluster (e.g. `ray.remote(execute_run)`) and hand the
-records to `append_result`.
+Order of work per run: train -> validation evaluations of every checkpoint (when the grid selects checkpoints)
+-> test evaluations of the last and the best-on-validation checkpoint, nominally and under each perturbation.
 """
 
 from __future__ import annotations
 
-import ctypes
-import json
 import math
 import os
-import platform
-import shutil
-import signal
-import subprocess
-import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from datetime import UTC, datetime
-from importlib import metadata
-from multiprocessing import get_context
+from dataclasses import dataclass, field
 from pathlib import Path
 
-from lerobot_obsbench.bench.grid import Grid, RunSpec, estimate_seconds
-from lerobot_obsbench.bench.results import append_result, read_results
+from lerobot_obsbench.bench.engines import make_engine
+from lerobot_obsbench.bench.grid import BUDGET_UNITS, EvalSpec, Grid, GridError, RunSpec
+from lerobot_obsbench.bench.results import append_result, by_kind, read_results
+from lerobot_obsbench.bench.units import (
+    demo_frames,
+    demos_unit,
+    eval_unit,
+    evaluation_progress,
+    train_unit,
+    training_progress,
+)
 
 RESULTS_FILE = "results.jsonl"
-PACKAGES = ("lerobot", "torch", "mani-skill", "sapien", "lerobot_policy_obsbench")
+DEMO_FRAMES_PER_EPISODE = 30  # for estimates before the demonstrations exist
+
+# Rough throughput for `--dry-run` estimates and the grid's ETA: training samples per second by (device kind,
+# preset), per space kind; evaluation environment steps per second by device kind. CPU: this 2-core machine
+# (README benchmarks); cuda: one H200 (README, "GPU numbers").
+TRAIN_SAMPLES_PER_SECOND = {
+    ("cpu", "tiny"): {"image": 100.0, "point": 100.0, "none": 200.0},
+    ("cpu", "cpu"): {"image": 60.0, "point": 45.0, "none": 150.0},
+    ("cpu", "paper"): {"image": 2.5, "point": 0.5, "none": 50.0},
+    ("cuda", "tiny"): {"image": 400.0, "point": 300.0, "none": 800.0},
+    ("cuda", "cpu"): {"image": 400.0, "point": 300.0, "none": 800.0},
+    ("cuda", "paper"): {"image": 150.0, "point": 60.0, "none": 800.0},
+}
+ENV_STEPS_PER_SECOND = {"cpu": 20.0, "cuda": 60.0}
 
 
-class RunError(RuntimeError):
-    """A run failed; its log says why."""
+def device_kind(device: str) -> str:
+    return "cuda" if device.startswith("cuda") else "cpu"
 
 
-def _die_with_parent() -> None:
-    """Children (training subprocesses, pool workers) get SIGKILL when their parent dies, so a killed grid
-    leaves no orphan writing into a run directory that the resumed grid is about to delete."""
-    try:
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-    except OSError:
-        pass
+def space_kind(obs_space: str) -> str:
+    from lerobot_obsbench.schema import BLIND_SPACES, POINT_SPACES
+
+    return "point" if obs_space in POINT_SPACES else "none" if obs_space in BLIND_SPACES else "image"
 
 
-def versions() -> dict[str, str]:
-    found = {"python": platform.python_version()}
-    for name in PACKAGES:
-        try:
-            found[name] = metadata.version(name)
-        except metadata.PackageNotFoundError:
-            found[name] = "not installed"
-    return found
+def train_seconds(run: RunSpec, steps: int, device: str) -> float:
+    rate = TRAIN_SAMPLES_PER_SECOND[(device_kind(device), run.preset)][space_kind(run.obs_space)]
+    return steps * run.batch_size / rate * max(run.image_size / 128, 0.5) ** 2 + 20
+
+
+def eval_seconds(spec: EvalSpec, device: str) -> float:
+    # successful episodes end early: count ~60% of the budget
+    return spec.episodes * spec.max_steps * 0.6 / ENV_STEPS_PER_SECOND[device_kind(device)] + 10
 
 
 def demo_dir(out: Path, run: RunSpec, episodes: int) -> Path:
     return out / "demos" / f"{run.demo_key}-{episodes}ep"
 
 
-def prepare_demos(runs: list[RunSpec], out: Path) -> dict[str, Path]:
-    """Record (or resume recording) the demonstrations the runs need: one dataset per task and camera set,
-    holding the largest demo count; a run with fewer demos trains on its first episodes."""
-    from lerobot_obsbench.datasets.recording import record_demos
+@dataclass
+class Work:
+    """What a grid still has to do."""
 
-    needed: dict[str, tuple[RunSpec, int]] = {}
-    for run in runs:
-        _, most = needed.get(run.demo_key, (run, 0))
-        needed[run.demo_key] = (run, max(most, run.demos))
-    paths = {}
-    for key, (run, episodes) in needed.items():
-        path = demo_dir(out, run, episodes)
-        record_demos(run.task, episodes, path, image_size=run.image_size, cameras=run.cameras)
-        paths[key] = path
-    return paths
+    runs: list[RunSpec]
+    trained: dict[str, dict]  # run_id -> train record
+    evaluated: dict[str, dict]  # eval_id -> eval record
+    to_train: list[RunSpec] = field(default_factory=list)
+    demos: dict[str, tuple[RunSpec, int]] = field(default_factory=dict)  # demo_key -> (a run, most demos)
 
 
-def training_steps(run: RunSpec, dataset: Path) -> int:
-    if run.steps is not None:
-        return int(run.steps)
-    from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
-
-    lengths = LeRobotDatasetMetadata("local/obsbench", root=dataset).episodes["length"][: run.demos]
-    return max(1, math.ceil(run.epochs * sum(lengths) / run.batch_size))
-
-
-def train_command(
-    run: RunSpec, dataset: Path, output_dir: Path, steps: int, device: str, loader_workers: int = 0
-) -> list[str]:
-    from lerobot_obsbench.presets import preset_args
-
-    overrides = [f"--policy.{k}={_cli_value(v)}" for k, v in run.policy_overrides]
-    sizes = [a for a in preset_args(run.preset, run.policy, run.obs_space) if not a.startswith("--policy.encoder=")]
-    return [
-        str(Path(sys.executable).parent / "lerobot-train"),
-        f"--policy.type={run.policy}",
-        f"--policy.obs_space={run.obs_space}",
-        *sizes,
-        f"--policy.encoder={run.encoder}",
-        f"--policy.cameras=[{','.join(run.cameras)}]",
-        *overrides,
-        f"--policy.optimizer_lr={run.lr}",
-        f"--policy.device={device}",
-        "--dataset.repo_id=local/obsbench",
-        f"--dataset.root={dataset}",
-        f"--dataset.episodes=[{','.join(str(i) for i in range(run.demos))}]",
-        f"--seed={run.seed}",
-        f"--batch_size={run.batch_size}",
-        f"--steps={steps}",
-        f"--save_freq={steps}",
-        f"--log_freq={max(steps // 20, 1)}",
-        f"--num_workers={loader_workers}",
-        "--wandb.enable=false",
-        f"--output_dir={output_dir}",
-        f"--job_name=obsbench_{run.run_id}",
-    ]
+def load_work(grid: Grid, out: Path, echo=print) -> Work:
+    results = out / RESULTS_FILE
+    records = read_results(results)
+    trained = {r["run_id"]: r for r in by_kind(records, "train")}
+    runs = grid.expand()
+    if grid.checkpoints_from:
+        source = Path(grid.checkpoints_from).expanduser() / RESULTS_FILE
+        source_records = read_results(source)
+        theirs = {r["run_id"]: r for r in by_kind(source_records, "train")}
+        missing = [r for r in runs if r.run_id not in trained and r.run_id not in theirs]
+        if missing:
+            raise GridError(
+                f"{grid.name} evaluates checkpoints from {source}, which has no trained run for "
+                f"{len(missing)} of its {len(runs)} runs (e.g. {missing[0].method} on {missing[0].task}, seed "
+                f"{missing[0].seed}, lr {missing[0].lr:g}): run the training grid first, and keep the two grids' "
+                "training fields identical"
+            )
+        wanted = {r.run_id for r in runs if r.run_id not in trained}
+        # the report needs the runs' configs, the best-checkpoint choice their validation scores: copy both here
+        for record in [
+            *(theirs[i] for i in sorted(wanted)),
+            *(r for r in by_kind(source_records, "eval") if r["run_id"] in wanted and r["split"] == "validation"),
+        ]:
+            record = {**record, "trained_in": str(source.parent)}
+            append_result(results, record)
+            records.append(record)
+            if record["kind"] == "train":
+                trained[record["run_id"]] = record
+    work = Work(runs, trained, {r["eval_id"]: r for r in by_kind(records, "eval")})
+    work.to_train = [r for r in runs if r.run_id not in trained]
+    for run in work.to_train:
+        _, most = work.demos.get(run.demo_key, (run, 0))
+        work.demos[run.demo_key] = (run, max(most, run.demos))
+    return work
 
 
-def _cli_value(value) -> str:
-    return "[" + ",".join(str(v) for v in value) + "]" if isinstance(value, (list, tuple)) else str(value)
+def planned_steps(run: RunSpec, out: Path) -> tuple[int, bool]:
+    """(optimizer steps, exact): frame_epochs budgets are estimated until the demonstrations exist."""
+    if run.budget_unit != "frame_epochs":
+        return run.steps(), True
+    path = demo_dir(out, run, run.demos)
+    if (path / "meta" / "info.json").is_file():
+        return run.steps(demo_frames(path, run.demos)), True
+    return run.steps(run.demos * DEMO_FRAMES_PER_EPISODE), False
 
 
-def _evaluation_summary(result: dict) -> dict:
-    keys = ("episodes", "successes", "success_rate", "ci95", "sub_success", "episode_length_mean", "wall_s")
-    return {k: result[k] for k in keys}
-
-
-def execute_run(config: dict, dataset: str, out_dir: str, device: str = "cpu", loader_workers: int = 0) -> dict:
-    """Train and evaluate one run from scratch; returns its results record (does not write it)."""
-    from lerobot_obsbench.envs.evaluate import evaluate
-
-    run = RunSpec.from_config(config)
-    root = Path(out_dir) / "runs" / run.run_id
-    shutil.rmtree(root, ignore_errors=True)  # leftover of a killed attempt
-    root.mkdir(parents=True)
-    (root / "run.json").write_text(json.dumps(run.config(), indent=2) + "\n")
-    steps = training_steps(run, Path(dataset))
-    start = time.time()
-    with open(root / "train.log", "w") as log:
-        done = subprocess.run(
-            train_command(run, Path(dataset), root / "train", steps, device, loader_workers),
-            stdout=log,
-            stderr=subprocess.STDOUT,
-            stdin=subprocess.DEVNULL,
-            preexec_fn=_die_with_parent,
-            env={**os.environ, "HF_HUB_OFFLINE": "1"},
+def print_plan(grid: Grid, work: Work, out: Path, device: str, echo=print) -> None:
+    done_evals = sum(s.eval_id in work.evaluated for r in work.runs for s in grid.evaluations(r))
+    all_evals = sum(len(grid.evaluations(r)) for r in work.runs)
+    echo(
+        f"grid {grid.name}: {len(work.runs)} runs, {len(work.runs) - len(work.to_train)} already trained, "
+        f"{len(work.to_train)} to train; {done_evals} of {all_evals} test evaluations done; results -> "
+        f"{out / RESULTS_FILE}"
+    )
+    if grid.checkpoints_from:
+        echo(f"  evaluates the checkpoints trained by {grid.checkpoints_from} (trains nothing)")
+    totals = {"steps": 0, "samples": 0, "episodes": 0, "cpu": 0.0, "cuda": 0.0}
+    for run in work.runs:
+        steps, exact = planned_steps(run, out)
+        unit = run.budget_unit
+        train = run.run_id not in work.trained
+        evals = [s for s in grid.evaluations(run) if s.eval_id not in work.evaluated]
+        checkpoints = grid.per_policy("checkpoints", run.policy)
+        if grid.validation_episodes:
+            evals += grid.validations(run, list(range(checkpoints)))  # one per checkpoint, for the estimate
+        if not train and not evals:
+            continue
+        approx = "" if exact else "~"
+        echo(
+            f"  {run.run_id}  {run.task:20s} {run.method:34s} demos {run.demos:<4d} seed {run.seed:<4d} "
+            f"lr {run.lr:<7g} batch {run.batch_size:<3d} {run.budget:g} {unit} = {approx}{steps} steps, "
+            f"{approx}{steps * run.batch_size} samples{'' if train else ' (trained)'}; "
+            f"{len(evals)} evaluations, {sum(s.episodes for s in evals)} episodes"
         )
-    train_s = time.time() - start
-    checkpoint = root / "train" / "checkpoints" / "last" / "pretrained_model"
-    if done.returncode != 0 or not checkpoint.is_dir():
-        tail = "".join((root / "train.log").read_text().splitlines(keepends=True)[-15:])
-        raise RunError(
-            f"training of run {run.run_id} ({run.method} on {run.task}) failed with exit code "
-            f"{done.returncode}; log {root / 'train.log'}:\n{tail}"
-        )
-    evaluations, eval_s = {}, 0.0
-    for perturbation in ("none", *run.perturbations):
-        result = evaluate(
-            checkpoint,
-            run.task,
-            run.eval_episodes,
-            image_size=run.image_size,
-            control_mode=run.control_mode,
-            device=device,
-            perturbation=perturbation,
-            progress=False,
-        )
-        (root / "eval").mkdir(exist_ok=True)
-        (root / "eval" / f"{perturbation.replace(':', '_')}.json").write_text(json.dumps(result, indent=2) + "\n")
-        evaluations[perturbation] = _evaluation_summary(result)
-        eval_s += result["wall_s"]
-    return {
-        "run_id": run.run_id,
-        "config": run.config(),
-        "method": run.method,
-        "task": run.task,
-        "evaluations": evaluations,
-        "train_steps": steps,
-        "checkpoint": str(checkpoint),
-        "device": device,
-        "timings": {"train_s": round(train_s, 1), "eval_s": round(eval_s, 1)},
-        "versions": versions(),
-        "finished_at": datetime.now(UTC).isoformat(timespec="seconds"),
-    }
-
-
-def describe(run: RunSpec) -> str:
-    budget = f"{run.steps} steps" if run.steps is not None else f"{run.epochs:g} epochs"
-    return (
-        f"{run.run_id}  {run.task:20s} {run.method:34s} demos {run.demos:<4d} seed {run.seed:<5d} lr {run.lr:g} "
-        f"{budget}, eval {run.eval_episodes} ep x {1 + len(run.perturbations)}"
+        if train:
+            totals["steps"] += steps
+            totals["samples"] += steps * run.batch_size
+        totals["episodes"] += sum(s.episodes for s in evals)
+        for kind in ("cpu", "cuda"):
+            totals[kind] += (train_seconds(run, steps, kind) if train else 0) + sum(
+                eval_seconds(s, kind) for s in evals
+            )
+    echo(
+        f"  total to do: {totals['steps']} optimizer steps, {totals['samples']} training samples, "
+        f"{totals['episodes']} evaluation episodes. Budget units: "
+        + "; ".join(f"{u} = {what}" for u, what in BUDGET_UNITS.items() if any(r.budget_unit == u for r in work.runs))
+    )
+    echo(
+        f"  rough cost with one worker: {totals['cpu'] / 3600:.1f} h on a 2-core CPU, {totals['cuda'] / 3600:.1f} h "
+        f"on one H200 GPU (planning on {device}; recorded demonstrations not counted)"
     )
 
 
-def plan(grid: Grid, out: Path) -> tuple[list[RunSpec], list[RunSpec]]:
-    """(all runs, runs still to do): finished runs are recognised by the id in results.jsonl."""
-    runs = grid.expand()
-    done = {r["run_id"] for r in read_results(out / RESULTS_FILE)}
-    return runs, [r for r in runs if r.run_id not in done]
+class Driver:
+    """Submits units as their inputs become ready, records their results, prints progress."""
+
+    def __init__(
+        self, grid: Grid, work: Work, out: Path, engine, device: str, loader_workers: int, threads: int | None, echo
+    ):
+        self.grid, self.work, self.out, self.engine = grid, work, out, engine
+        self.device, self.loader_workers, self.threads, self.echo = device, loader_workers, threads, echo
+        self.results = out / RESULTS_FILE
+        self.pending: dict = {}  # engine handle -> (kind, payload)
+        self.copies: dict[str, list[dict]] = {}  # eval_id of a "last" eval -> "best" records waiting to copy it
+        self.failures = 0
+        self.started = time.time()
+        self.rates: dict[str, tuple[float, int]] = {}  # run_id -> (time, step) at the previous progress line
+        self.gpus = 1 if device.startswith("cuda") else 0
+
+    # ---- scheduling ----------------------------------------------------------------------------------------
+
+    def submit(self, kind: str, payload, fn, *args, cpus: float = 1, gpus: float = 0) -> None:
+        self.pending[self.engine.submit(fn, *args, cpus=cpus, gpus=gpus)] = (kind, payload)
+
+    def start(self) -> None:
+        for key, (run, episodes) in self.work.demos.items():
+            self.submit(
+                "demos",
+                key,
+                demos_unit,
+                run.task,
+                episodes,
+                str(demo_dir(self.out, run, episodes)),
+                run.image_size,
+                list(run.cameras),
+            )
+        for run in self.work.runs:
+            if run.run_id in self.work.trained:
+                self.schedule_evaluations(run)
+
+    def train(self, run: RunSpec, dataset: Path) -> None:
+        self.submit(
+            "train",
+            run,
+            train_unit,
+            run.config(),
+            str(dataset),
+            str(self.out),
+            self.device,
+            self.grid.per_policy("checkpoints", run.policy),
+            self.loader_workers,
+            self.threads,
+            cpus=max(1, self.threads or 1),
+            gpus=self.gpus,
+        )
+
+    def evaluate(self, run: RunSpec, spec: EvalSpec, step: int) -> None:
+        train = self.work.trained[run.run_id]
+        checkpoint = train["checkpoints"][str(step)]
+        self.submit(
+            "eval",
+            (run, spec),
+            eval_unit,
+            spec.config(),
+            run.config(),
+            checkpoint,
+            step,
+            str(self.out),
+            self.device,
+            self.threads,
+            cpus=max(1, self.threads or 1),
+            gpus=self.gpus,
+        )
+
+    def schedule_evaluations(self, run: RunSpec) -> None:
+        """Validation evaluations first (when the grid selects checkpoints), then the test evaluations."""
+        train = self.work.trained[run.run_id]
+        steps = sorted(int(s) for s in train["checkpoints"])
+        waiting = [s for s in self.grid.validations(run, steps) if s.eval_id not in self.work.evaluated]
+        for spec in waiting:
+            self.evaluate(run, spec, int(spec.checkpoint.removeprefix("step:")))
+        if not waiting:
+            self.schedule_tests(run)
+
+    def best_step(self, run: RunSpec) -> int | None:
+        """The checkpoint with the highest validation success rate (ties: the later one)."""
+        train = self.work.trained[run.run_id]
+        scores = []
+        for spec in self.grid.validations(run, sorted(int(s) for s in train["checkpoints"])):
+            record = self.work.evaluated.get(spec.eval_id)
+            if record is None:
+                return None
+            scores.append((record["success_rate"], int(spec.checkpoint.removeprefix("step:"))))
+        return max(scores)[1] if scores else None
+
+    def schedule_tests(self, run: RunSpec) -> None:
+        train = self.work.trained[run.run_id]
+        last = int(train["train_steps"])
+        best = self.best_step(run)
+        for spec in self.grid.evaluations(run):
+            if spec.eval_id in self.work.evaluated:
+                continue
+            if spec.checkpoint == "best" and best == last:  # the same checkpoint: copy the last one's record
+                twin = EvalSpec(**{**spec.config(), "checkpoint": "last"})
+                self.copies.setdefault(twin.eval_id, []).append(spec.config())
+                if twin.eval_id in self.work.evaluated:
+                    self.copy_records(twin.eval_id)
+                continue
+            self.evaluate(run, spec, last if spec.checkpoint == "last" else best)
+
+    def copy_records(self, last_id: str) -> None:
+        for config in self.copies.pop(last_id, []):
+            spec = EvalSpec(**config)
+            self.record({**self.work.evaluated[last_id], **config, "eval_id": spec.eval_id, "copied_from": last_id})
+
+    def record(self, record: dict) -> None:
+        append_result(self.results, record)
+        if record["kind"] == "train":
+            self.work.trained[record["run_id"]] = record
+        else:
+            self.work.evaluated[record["eval_id"]] = record
+
+    # ---- the loop -------------------------------------------------------------------------------------------
+
+    def finished(self, kind: str, payload, outcome) -> None:
+        if kind == "demos":
+            for run in self.work.to_train:
+                if run.demo_key == payload:
+                    _, episodes = self.work.demos[payload]
+                    self.train(run, demo_dir(self.out, run, episodes))
+            return
+        self.record(outcome)
+        if kind == "train":
+            self.echo(
+                f"trained {payload.run_id} {payload.method} on {payload.task}: {outcome['train_steps']} steps in "
+                f"{outcome['timings']['train_s']:.0f} s"
+                + (f" (resumed at step {outcome['resumed_from']})" if outcome["resumed_from"] else "")
+            )
+            self.schedule_evaluations(payload)
+            return
+        run, spec = payload
+        lo, hi = outcome["ci95"]
+        self.echo(
+            f"evaluated {run.run_id} {run.method} on {run.task} [{spec.split}, {spec.checkpoint} = step "
+            f"{outcome['checkpoint_step']}, {spec.perturbation}]: {outcome['successes']}/{outcome['episodes']} = "
+            f"{outcome['success_rate']:.0%} (95% CI {lo:.0%}-{hi:.0%})"
+        )
+        if spec.split == "validation" and self.best_step(run) is not None:
+            self.schedule_tests(run)
+        if spec.eval_id in self.copies:
+            self.copy_records(spec.eval_id)
+
+    def failed(self, kind: str, payload, err: Exception) -> None:
+        self.failures += 1
+        what = {
+            "demos": lambda: f"demonstrations {payload}",
+            "train": lambda: f"training {payload.run_id} {payload.method} on {payload.task}",
+            "eval": lambda: (
+                f"evaluation {payload[1].eval_id} of "
+                f"{payload[0].run_id} ({payload[1].split}, {payload[1].checkpoint}, {payload[1].perturbation})"
+            ),
+        }[kind]()
+        self.echo(f"FAILED {what}: {type(err).__name__}: {err}")
+
+    def loop(self, every: float) -> None:
+        last_progress = time.time()
+        while self.pending:
+            for handle in self.engine.wait(list(self.pending), timeout=min(every, 5.0)):
+                kind, payload = self.pending.pop(handle)
+                try:
+                    outcome = self.engine.result(handle)
+                except Exception as err:
+                    self.failed(kind, payload, err)
+                    continue
+                self.finished(kind, payload, outcome)
+            if time.time() - last_progress >= every and self.pending:
+                self.progress()
+                last_progress = time.time()
+
+    # ---- progress -------------------------------------------------------------------------------------------
+
+    def progress(self) -> None:
+        lines, remaining = [], 0.0
+        for kind, payload in self.pending.values():
+            if kind == "train":
+                state = training_progress(self.out, payload.run_id)
+                steps, _ = planned_steps(payload, self.out)
+                if state is None or state["started"] < self.started:
+                    remaining += train_seconds(payload, steps, self.device)
+                    continue
+                now, (then, before) = time.time(), self.rates.get(payload.run_id, (self.started, state["step"]))
+                rate = (state["step"] - before) / max(now - then, 1e-6) if state["step"] > before else None
+                self.rates[payload.run_id] = (now, state["step"])
+                left = (state["steps"] - state["step"]) / rate if rate else train_seconds(payload, steps, self.device)
+                remaining += left
+                loss = f" loss {state['loss']:.4f}" if state["loss"] is not None else ""
+                speed = f", {rate:.2f} steps/s, ETA {left / 60:.1f} min" if rate else ""
+                lines.append(
+                    f"  training {payload.run_id} {payload.method} on {payload.task}: step "
+                    f"{state['step']}/{state['steps']}{loss}{speed}"
+                )
+            elif kind == "eval":
+                run, spec = payload
+                state = evaluation_progress(self.out, run.run_id, spec.eval_id)
+                remaining += eval_seconds(spec, self.device) * (1 - (state or {"done": 0})["done"] / spec.episodes)
+                if state:
+                    lines.append(
+                        f"  evaluating {run.run_id} {run.method} [{spec.split}, {spec.checkpoint}, "
+                        f"{spec.perturbation}]: episode {state['done']}/{state['episodes']}, "
+                        f"{state['successes']} successes"
+                    )
+        workers = getattr(self.engine, "workers", 1)
+        elapsed = (time.time() - self.started) / 60
+        self.echo(
+            f"[{elapsed:.1f} min] {len(self.pending)} units queued or running; grid ETA ~"
+            f"{math.ceil(remaining / max(workers, 1) / 60)} min (later units not counted until ready)"
+        )
+        for line in lines:
+            self.echo(line)
 
 
 def run_grid(
     grid: Grid,
     out: Path,
+    engine: str = "local",
     workers: int = 1,
     device: str = "cpu",
+    address: str | None = None,
     dry_run: bool = False,
     loader_workers: int = 0,
+    threads: int | None = None,
+    progress_every: float = 30.0,
     echo=print,
 ) -> int:
-    """Run every unfinished run of `grid`; returns the number of failed runs. `loader_workers` is LeRobot's
-    DataLoader `num_workers` per run (0 is fastest on a 2-core CPU, where a worker competes with training)."""
+    """Run every unit of `grid` that has no record yet; returns the number of failed units.
+
+    `threads`: CPU threads per unit (None: the machine's cores shared by the local workers; Ray: 1 per CPU
+    the unit asks for). `loader_workers`: LeRobot's DataLoader workers per training run (0 is fastest on a
+    2-core CPU, where a worker competes with training)."""
     out = Path(out)
-    runs, todo = plan(grid, out)
-    estimate = sum(estimate_seconds(r) for r in todo)
-    echo(
-        f"grid {grid.name}: {len(runs)} runs, {len(runs) - len(todo)} already finished, {len(todo)} to run "
-        f"(rough 2-core CPU estimate {estimate / 60:.0f} min with 1 worker); results -> {out / RESULTS_FILE}"
-    )
-    for run in todo:
-        echo("  " + describe(run))
-    if dry_run or not todo:
+    work = load_work(grid, out, echo)
+    print_plan(grid, work, out, device, echo)
+    if dry_run:
         return 0
-    datasets = prepare_demos(todo, out)
-    failures = 0
-    started = time.time()
-    jobs = [(run, str(datasets[run.demo_key])) for run in todo]
-    if workers <= 1:
-
-        def sequential():
-            for index, (run, dataset) in enumerate(jobs, start=1):
-                echo(
-                    f"[{index}/{len(jobs)}] training {run.run_id} {run.method} on {run.task} "
-                    f"(log: {out / 'runs' / run.run_id / 'train.log'})"
-                )
-                yield run, _attempt(run, dataset, out, device, loader_workers)
-
-        failures = _collect(sequential(), out, len(jobs), started, echo)
-    else:
-        with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_die_with_parent) as pool:
-            futures = {pool.submit(_attempt, run, dataset, out, device, loader_workers): run for run, dataset in jobs}
-            echo(f"{len(jobs)} runs queued on {workers} worker processes (logs: {out / 'runs'}/<run_id>/train.log)")
-            outcomes = ((futures[f], f.result()) for f in as_completed(futures))
-            failures = _collect(outcomes, out, len(jobs), started, echo)
-    return failures
-
-
-def _attempt(run: RunSpec, dataset: str, out: Path, device: str, loader_workers: int) -> dict | str:
+    if threads is None and engine == "local":
+        threads = max(1, (os.cpu_count() or 1) // max(workers, 1))
+    runner = Driver(grid, work, out, make_engine(engine, workers, address), device, loader_workers, threads, echo)
     try:
-        return execute_run(run.config(), dataset, str(out), device, loader_workers)
-    except Exception as err:
-        return f"{type(err).__name__}: {err}"
-
-
-def _collect(outcomes, out: Path, total: int, started: float, echo) -> int:
-    failures = 0
-    for index, (run, outcome) in enumerate(outcomes, start=1):
-        elapsed = (time.time() - started) / 60
-        if isinstance(outcome, str):
-            failures += 1
-            echo(f"[{index}/{total}] FAILED {run.run_id} {run.method} on {run.task}: {outcome}")
-            continue
-        append_result(out / RESULTS_FILE, outcome)
-        nominal = outcome["evaluations"]["none"]
-        lo, hi = nominal["ci95"]
-        echo(
-            f"[{index}/{total}] {run.run_id} {run.method} on {run.task}: success {nominal['successes']}/"
-            f"{nominal['episodes']} = {nominal['success_rate']:.0%} (95% CI {lo:.0%}-{hi:.0%}); train "
-            f"{outcome['timings']['train_s']:.0f} s, eval {outcome['timings']['eval_s']:.0f} s; {elapsed:.1f} min"
-        )
-    return failures
+        runner.start()
+        if not runner.pending:
+            echo("nothing to do: every run is trained and every evaluation recorded")
+        runner.loop(progress_every)
+    finally:
+        runner.engine.shutdown()
+    return runner.failures

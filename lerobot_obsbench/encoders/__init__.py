@@ -1,6 +1,6 @@
 """Observation encoders. Importing this package registers the built-in encoders."""
 
-from lerobot_obsbench.encoders import pointnet, resnet, spunet34, vit  # noqa: F401  (registration side effects)
+from lerobot_obsbench.encoders import blind, pointnet, resnet, spunet34, vit  # noqa: F401  (registration)
 from lerobot_obsbench.encoders.registry import (
     EncoderContext,
     EncoderOutput,

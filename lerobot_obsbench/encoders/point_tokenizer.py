@@ -9,7 +9,7 @@ A backbone is a module `(xyz (B, N, 3), features (B, N, C), mask (B, N)) -> (B, 
   width -> BN -> ReLU -> max-pool) gives one input point per seed; the backbone encodes those seeds and a
   linear map makes them tokens.
 Each token's position is a 3D sine embedding of its seed. Global feature for Diffusion: a max-pool over the
-encoded points (post) or seeds (pre).
+encoded points (post) or seeds (pre), or the official tokenizer + projector (see `PointTokenEncoder`).
 """
 
 from __future__ import annotations
@@ -42,8 +42,11 @@ def sine_embedding_3d(xyz: Tensor, dim: int, temperature: float = 10000.0, scale
     return nn.functional.pad(emb, (0, dim - emb.shape[-1]))
 
 
-def norm_relu(width: int) -> list[nn.Module]:
-    return [nn.BatchNorm1d(width, eps=1e-3, momentum=0.01), nn.ReLU(inplace=True)]
+def norm_relu(width: int, official: bool = False) -> list[nn.Module]:
+    """BatchNorm + ReLU: the PointNet / SpUNet norm (eps 1e-3, momentum 0.01), or PyTorch's defaults, which the
+    official code's tokenizer and Diffusion Policy head use (`official=True`)."""
+    norm = nn.BatchNorm1d(width) if official else nn.BatchNorm1d(width, eps=1e-3, momentum=0.01)
+    return [norm, nn.ReLU(inplace=True)]
 
 
 def group(xyz: Tensor, mask: Tensor, num_tokens: int, knn: int) -> tuple[Tensor, Tensor, Tensor, Tensor]:
@@ -55,24 +58,62 @@ def group(xyz: Tensor, mask: Tensor, num_tokens: int, knn: int) -> tuple[Tensor,
     return neighbours, geometry.gather(xyz, neighbours) - seeds[:, :, None], seeds, seed_mask
 
 
-def pool_groups(module: nn.Module, grouped: Tensor, seed_mask: Tensor) -> Tensor:
-    """module over every grouped point of valid seeds (so BatchNorm sees real groups only), max over each
-    group -> (B, S, D).
+DP_HEAD_CHANNELS = 128  # the official Diffusion Policy point-cloud feature
+GLOBAL_HEADS = ("maxpool", "official")
+PIPELINES = ("plugin", "official")
+
+
+def apply_to_seeds(module: nn.Module, values: Tensor, seed_mask: Tensor, all_slots: bool) -> Tensor:
+    """module over values (B, S, ..., C) of the valid seeds only (BatchNorm sees real groups), or of every slot,
+    repeats included, as the official code does (`all_slots`); invalid slots are zero in the result."""
+    used = torch.ones_like(seed_mask) if all_slots else seed_mask
+    out = module(values[used].reshape(-1, values.shape[-1]))
+    full = out.new_zeros(*values.shape[:-1], out.shape[-1])
+    full[used] = out.reshape(int(used.sum()), *values.shape[2:-1], out.shape[-1])
+    return full
+
+
+def pool_groups(module: nn.Module, grouped: Tensor, seed_mask: Tensor, all_slots: bool = False) -> Tensor:
+    """module over every grouped point (B, S, k, C), max over each group -> (B, S, D).
 
     Invalid seed slots (clouds with fewer points than seeds) copy the first seed's token, like the repeated
     indices of the reference CUDA FPS: ACT's decoder has no key-padding mask, so slots must hold real tokens.
     """
-    b, s, k, c = grouped.shape
-    flat = module(grouped[seed_mask].reshape(-1, c))  # (P*k, D)
-    pooled = flat.reshape(-1, k, flat.shape[-1]).amax(dim=1)
-    tokens = pooled.new_zeros(b, s, pooled.shape[-1])
-    tokens[seed_mask] = pooled
-    return torch.where(seed_mask[..., None], tokens, tokens[:, :1])
+    pooled = apply_to_seeds(module, grouped, seed_mask, all_slots).amax(dim=2)
+    return torch.where(seed_mask[..., None], pooled, pooled[:, :1])
+
+
+class OfficialDiffusionHead(nn.Module):
+    """The official code's Diffusion Policy point-cloud conditioning after the tokenizer: per-token MLP (Conv1d k=1
+    + BN + ReLU per width), max over seeds, Conv1d + BN to `out_channels` (128)."""
+
+    def __init__(self, width: int, widths: tuple[int, ...], out_channels: int = DP_HEAD_CHANNELS):
+        super().__init__()
+        layers: list[nn.Module] = []
+        for w in widths:
+            layers += [nn.Linear(width, w), *norm_relu(w, official=True)]
+            width = w
+        self.mlp = nn.Sequential(*layers)
+        self.out = nn.Sequential(nn.Linear(width, out_channels), nn.BatchNorm1d(out_channels))
+
+    def forward(self, tokens: Tensor, seed_mask: Tensor, all_slots: bool) -> Tensor:
+        feats = apply_to_seeds(self.mlp, tokens, seed_mask, all_slots)
+        used = torch.ones_like(seed_mask) if all_slots else seed_mask
+        return self.out(feats.masked_fill(~used[..., None], float("-inf")).amax(dim=1))
 
 
 class PointTokenEncoder(nn.Module):
     """A per-point backbone + the point tokenizer: ACT tokens (B, S, dim) with 3D sine positions, or one
-    global feature (B, width) for Diffusion Policy."""
+    global feature for Diffusion Policy.
+
+    - `position_scale`: the token positions are the sine embedding of position_scale x seed xyz (metres); the
+      official ACT code embeds raw metres (1.0), which leaves only a few channels varying over a table-top scene.
+    - `pipeline="official"`: the tokenizer's BatchNorm takes PyTorch's defaults and its batch statistics include
+      the repeated slots of clouds with fewer points than seeds, as in the official code.
+    - `global_head` (Diffusion Policy): "maxpool", a max over the encoded points (post) or seeds (pre); or
+      "official", the official tokenizer + projector: `dp_projection` (an extra per-point Linear, PointNet's
+      512 -> 96), the tokenizer at the backbone's width, `dp_widths` per-token layers, max over seeds, 128-d.
+    """
 
     def __init__(
         self,
@@ -83,44 +124,81 @@ class PointTokenEncoder(nn.Module):
         sampling: str = "post",
         num_tokens: int = 2048,
         knn: int = 16,
+        position_scale: float = 100.0,
+        pipeline: str = "plugin",
+        global_head: str = "maxpool",
+        dp_projection: int | None = None,
+        dp_widths: tuple[int, ...] = (),
     ):
         super().__init__()
         check_choice("sampling", sampling, SAMPLING)
+        check_choice("pipeline", pipeline, PIPELINES)
+        check_choice("global_head", global_head, GLOBAL_HEADS)
         if num_tokens < 1 or knn < 1:
             raise ValueError(f"num_tokens and knn must be >= 1; got {num_tokens}, {knn}")
+        if position_scale <= 0:
+            raise ValueError(f"position_scale must be > 0; got {position_scale}")
+        if global_head == "official" and sampling != "post":
+            raise ValueError(
+                "global_head='official' is the official post-sampling tokenizer + projector; "
+                "use sampling='post' with it"
+            )
         self.output, self.sampling, self.num_tokens, self.knn = output, sampling, num_tokens, knn
+        self.position_scale, self.all_slots = position_scale, pipeline == "official"
+        self.global_head = global_head if output == "global" else None
         self.backbone = backbone
         width = backbone.out_channels
-        if sampling == "post" and output == "tokens":
+        official = pipeline == "official"
+        if self.global_head == "official":
+            self.dp_projection = nn.Linear(width, dp_projection) if dp_projection else None
+            width = dp_projection or width
+            dim = width  # the official tokenizer keeps the feature width
+        if sampling == "post" and (output == "tokens" or self.global_head == "official"):
             # Linear(relative xyz ‖ feature) split in two: the feature part is applied once per point before
             # grouping instead of once per (seed, neighbour) pair — the same map, ~knn times fewer FLOPs.
             self.feature_proj = nn.Linear(width, dim, bias=False)
             self.offset_proj = nn.Linear(3, dim, bias=False)
-            self.group_act = nn.Sequential(*norm_relu(dim))
+            self.group_act = nn.Sequential(*norm_relu(dim, official))
         if sampling == "pre":
             self.group_proj = nn.Sequential(
-                nn.Linear(3 + in_channels, in_channels, bias=False), *norm_relu(in_channels)
+                nn.Linear(3 + in_channels, in_channels, bias=False), *norm_relu(in_channels, official)
             )
             if output == "tokens":
                 self.tokenizer = nn.Linear(width, dim)
+        if self.global_head == "official":
+            self.head = OfficialDiffusionHead(dim, dp_widths)
         self.pos_dim = dim
+
+    def _post_tokens(self, cloud: PointCloud, point_feats: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        neighbours, offsets, seeds, seed_mask = group(cloud.xyz, cloud.mask, self.num_tokens, self.knn)
+        projected = geometry.gather(masked_apply(self.feature_proj, point_feats, cloud.mask), neighbours)
+        return (
+            pool_groups(self.group_act, projected + self.offset_proj(offsets), seed_mask, self.all_slots),
+            seeds,
+            seed_mask,
+        )
 
     def forward(self, cloud: PointCloud) -> Tensor | tuple[Tensor, Tensor]:
         if self.sampling == "post":
             point_feats = self.backbone(cloud.xyz, cloud.features, cloud.mask)
-            if self.output == "global":
+            if self.global_head == "maxpool":
                 return point_feats.masked_fill(~cloud.mask[..., None], float("-inf")).amax(dim=1)
-            neighbours, offsets, seeds, seed_mask = group(cloud.xyz, cloud.mask, self.num_tokens, self.knn)
-            projected = geometry.gather(masked_apply(self.feature_proj, point_feats, cloud.mask), neighbours)
-            tokens = pool_groups(self.group_act, projected + self.offset_proj(offsets), seed_mask)
+            if self.global_head == "official":
+                if self.dp_projection is not None:
+                    point_feats = masked_apply(self.dp_projection, point_feats, cloud.mask)
+                tokens, _, seed_mask = self._post_tokens(cloud, point_feats)
+                return self.head(tokens, seed_mask, self.all_slots)
+            tokens, seeds, seed_mask = self._post_tokens(cloud, point_feats)
         else:
             neighbours, offsets, seeds, seed_mask = group(cloud.xyz, cloud.mask, self.num_tokens, self.knn)
             grouped = torch.cat([offsets, geometry.gather(cloud.features, neighbours)], dim=-1)
-            seed_feats = self.backbone(seeds, pool_groups(self.group_proj, grouped, seed_mask), seed_mask)
+            seed_feats = self.backbone(
+                seeds, pool_groups(self.group_proj, grouped, seed_mask, self.all_slots), seed_mask
+            )
             if self.output == "global":
                 return seed_feats.masked_fill(~seed_mask[..., None], float("-inf")).amax(dim=1)
             tokens = torch.where(seed_mask[..., None], self.tokenizer(seed_feats), self.tokenizer(seed_feats[:, :1]))
-        return tokens, sine_embedding_3d(seeds, self.pos_dim).to(tokens.dtype)
+        return tokens, sine_embedding_3d(seeds, self.pos_dim, scale=self.position_scale).to(tokens.dtype)
 
 
 def describe_point_tokens(out_channels: int):
@@ -128,7 +206,8 @@ def describe_point_tokens(out_channels: int):
 
     def describe(obs_space: str, output: str, dim: int, context: EncoderContext, options: dict) -> EncoderOutput:
         if output == "global":
-            return EncoderOutput(None, out_channels)
+            official = options.get("global_head") == "official"
+            return EncoderOutput(None, DP_HEAD_CHANNELS if official else out_channels)
         return EncoderOutput(options["num_tokens"], dim)
 
     return describe

@@ -5,6 +5,9 @@ BatchNorm (eps 1e-3, momentum 0.01) and ReLU. Here it is a shared per-point MLP 
 applied to the valid points only (padding never enters the BatchNorm statistics). The two are the same map: a
 kernel-1 convolution over voxels multiplies each voxel's feature by one matrix, independent of its neighbours,
 and voxel sampling already left one point per voxel. 83,968 parameters for rgb+xyz input.
+
+For Diffusion Policy's official head (`global_head="official"`) the official code adds a 512 -> 96 output layer
+before the tokenizer; with the tokenizer's Linear + BN that is Table 1's "PointNet 0.14M" (142,912).
 """
 
 from __future__ import annotations
@@ -21,6 +24,8 @@ from lerobot_obsbench.encoders.registry import register_encoder
 from lerobot_obsbench.schema import input_channels
 
 POINTNET_WIDTHS = (64, 64, 64, 128, 512)
+# The official Diffusion Policy head: an extra 512 -> 96 point layer, then one 96-wide token layer.
+DP_PROJECTION, DP_WIDTHS = 96, (96,)
 
 
 class PointNetBackbone(nn.Module):
@@ -54,8 +59,22 @@ def build_pointnet(
     sampling: str = "post",
     num_tokens: int = 2048,
     knn: int = 16,
+    position_scale: float = 100.0,
+    pipeline: str = "plugin",
+    global_head: str = "maxpool",
 ) -> PointTokenEncoder:
     channels = input_channels(obs_space, point_features)
     return PointTokenEncoder(
-        PointNetBackbone(channels), channels, output, dim=dim, sampling=sampling, num_tokens=num_tokens, knn=knn
+        PointNetBackbone(channels),
+        channels,
+        output,
+        dim=dim,
+        sampling=sampling,
+        num_tokens=num_tokens,
+        knn=knn,
+        position_scale=position_scale,
+        pipeline=pipeline,
+        global_head=global_head,
+        dp_projection=DP_PROJECTION,
+        dp_widths=DP_WIDTHS,
     )

@@ -8,6 +8,7 @@ import torchvision
 from lerobot.policies.act.modeling_act import ACTSinusoidalPositionEmbedding2d
 from torch import Tensor, nn
 
+from lerobot_obsbench.encoders.image_input import resize, zero_extra_channels
 from lerobot_obsbench.encoders.pretrained import (
     CheckpointError,
     expand_input_channels,
@@ -45,17 +46,32 @@ def resnet_state_dict(pretrained: str, arch: str) -> tuple[dict[str, Tensor], st
 
 
 class ResNetEncoder(nn.Module):
-    def __init__(self, arch: str, in_channels: int, output: str, dim: int = 512, pretrained: str | None = None):
+    """A torchvision ResNet up to layer4. `input_size`: frames are resized to it first (the official pipeline
+    feeds 224 px, 7x7 = 49 tokens per camera); `zero_extra_channels`: the stem's non-RGB channels start at zero
+    also when training from scratch (pretrained stems always start them at zero)."""
+
+    def __init__(
+        self,
+        arch: str,
+        in_channels: int,
+        output: str,
+        dim: int = 512,
+        pretrained: str | None = None,
+        input_size: int | None = None,
+        zero_extra: bool = False,
+    ):
         super().__init__()
         net = getattr(torchvision.models, arch)(weights=None)
         net.conv1 = nn.Conv2d(in_channels, 64, kernel_size=7, stride=2, padding=3, bias=False)
+        if zero_extra:
+            zero_extra_channels(net.conv1.weight)
         if pretrained:
             state, source = resnet_state_dict(pretrained, arch)
             if "conv1.weight" in state and state["conv1.weight"].shape[1] == 3:
                 state["conv1.weight"] = expand_input_channels(state["conv1.weight"], in_channels)
             load_matching(net, state, source, allow_missing=("fc.",))
         self.body = nn.Sequential(*list(net.children())[:-2])  # up to layer4: (B, C, H/STRIDE, W/STRIDE)
-        self.output = output
+        self.output, self.input_size = output, input_size
         if output == "tokens":
             self.proj = nn.Conv2d(FEATURE_CHANNELS[arch], dim, kernel_size=1)
             self.pos = ACTSinusoidalPositionEmbedding2d(dim // 2)
@@ -63,7 +79,8 @@ class ResNetEncoder(nn.Module):
     def forward(self, images: Tensor) -> Tensor | tuple[Tensor, Tensor]:
         """images (B, n_cam, C, H, W) -> tokens (B, n_cam*h*w, D) + pos (1, n_cam*h*w, D), or (B, n_cam*C')."""
         b, n_cam = images.shape[:2]
-        fmap = self.body(images.flatten(0, 1))
+        frames = images.flatten(0, 1)
+        fmap = self.body(resize(frames, self.input_size) if self.input_size else frames)
         if self.output == "global":
             return fmap.mean(dim=(2, 3)).reshape(b, -1)
         pos = self.pos(fmap).flatten(2).transpose(1, 2).repeat(1, n_cam, 1)
@@ -75,15 +92,30 @@ def _describer(arch: str):
     def describe(obs_space: str, output: str, dim: int, context: EncoderContext, options: dict) -> EncoderOutput:
         if output == "global":
             return EncoderOutput(None, context.cameras * FEATURE_CHANNELS[arch])
-        height, width = context.image_size
+        height, width = (options["input_size"],) * 2 if options.get("input_size") else context.image_size
         return EncoderOutput(context.cameras * math.ceil(height / STRIDE) * math.ceil(width / STRIDE), dim)
 
     return describe
 
 
 def _builder(arch: str):
-    def build(obs_space: str, output: str, dim: int, pretrained: str | None = None) -> ResNetEncoder:
-        return ResNetEncoder(arch, input_channels(obs_space), output, dim=dim, pretrained=pretrained)
+    def build(
+        obs_space: str,
+        output: str,
+        dim: int,
+        pretrained: str | None = None,
+        input_size: int | None = None,
+        zero_extra_channels: bool = False,
+    ) -> ResNetEncoder:
+        return ResNetEncoder(
+            arch,
+            input_channels(obs_space),
+            output,
+            dim=dim,
+            pretrained=pretrained,
+            input_size=input_size,
+            zero_extra=zero_extra_channels,
+        )
 
     return build
 

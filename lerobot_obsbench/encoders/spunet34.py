@@ -20,6 +20,7 @@ from lerobot_obsbench.schema import input_channels
 
 PONDERV2_CONDITIONS = ("ScanNet", "S3DIS", "Structured3D")
 OUT_CHANNELS = 96  # the last decoder stage's width
+DP_WIDTHS = (96, 128)  # the official Diffusion Policy head's token layers
 
 
 def ponderv2_to_spunet(state: dict[str, Tensor], condition: str = "ScanNet") -> dict[str, Tensor]:
@@ -78,6 +79,9 @@ def build_spunet(
     knn: int = 16,
     voxel_size: float = 0.005,
     pretrained: str | None = None,
+    position_scale: float = 100.0,
+    pipeline: str = "plugin",
+    global_head: str = "maxpool",
 ) -> PointTokenEncoder:
     from lerobot_obsbench.encoders.sparse_unet import SpUNet  # spconv is needed from here on only
 
@@ -85,4 +89,16 @@ def build_spunet(
     backbone = SpUNet(channels, voxel_size=voxel_size)
     if pretrained:
         load_ponderv2(backbone, pretrained)
-    return PointTokenEncoder(backbone, channels, output, dim=dim, sampling=sampling, num_tokens=num_tokens, knn=knn)
+    return PointTokenEncoder(
+        backbone,
+        channels,
+        output,
+        dim=dim,
+        sampling=sampling,
+        num_tokens=num_tokens,
+        knn=knn,
+        position_scale=position_scale,
+        pipeline=pipeline,
+        global_head=global_head,
+        dp_widths=DP_WIDTHS,
+    )

@@ -25,6 +25,7 @@ import torch.nn.functional as F
 from lerobot.policies.act.modeling_act import create_sinusoidal_pos_embedding
 from torch import Tensor, nn
 
+from lerobot_obsbench.encoders.image_input import resize_center_crop, zero_extra_channels
 from lerobot_obsbench.encoders.pretrained import expand_input_channels, load_matching, read_state_dict
 from lerobot_obsbench.encoders.registry import EncoderContext, EncoderOutput, register_encoder
 from lerobot_obsbench.schema import IMAGE_SPACES, input_channels
@@ -50,6 +51,9 @@ class _CameraTokens(nn.Module):
 
 
 class ViTEncoder(nn.Module):
+    """timm's ViT-B/16 built for `image_size`, or, with `input_size`, for the official pipeline's input: frames
+    resized (bicubic) to 256/224 of it and centre-cropped to input_size (224: 196 patches)."""
+
     def __init__(
         self,
         in_channels: int,
@@ -57,9 +61,15 @@ class ViTEncoder(nn.Module):
         dim: int = 512,
         pretrained: str | None = None,
         image_size: tuple[int, int] = (224, 224),
+        input_size: int | None = None,
+        zero_extra: bool = False,
     ):
         super().__init__()
         from timm.models.vision_transformer import VisionTransformer
+
+        self.input_size = input_size
+        if input_size:
+            image_size = (input_size, input_size)
 
         self.vit = VisionTransformer(
             img_size=image_size,
@@ -73,6 +83,8 @@ class ViTEncoder(nn.Module):
             dynamic_img_size=True,
             dynamic_img_pad=True,
         )
+        if zero_extra:
+            zero_extra_channels(self.vit.patch_embed.proj.weight)
         if pretrained:
             self.load_mae(pretrained)
         self.head = _CameraTokens(WIDTH, output, dim)
@@ -91,7 +103,9 @@ class ViTEncoder(nn.Module):
 
     def forward(self, images: Tensor) -> Tensor | tuple[Tensor, Tensor]:
         """images (B, n_cam, C, H, W) -> ACT tokens + pos, or (B, n_cam * 768)."""
-        return self.head(self.vit(images.flatten(0, 1)), images.shape[0])
+        frames = images.flatten(0, 1)
+        frames = resize_center_crop(frames, self.input_size) if self.input_size else frames
+        return self.head(self.vit(frames), images.shape[0])
 
 
 def sincos_2d(h: int, w: int, dim: int) -> Tensor:
@@ -118,11 +132,31 @@ class PatchAdapter(nn.Module):
         return (tokens + pos).flatten(2).transpose(1, 2)
 
 
+def standardize_depth(depth: Tensor, low: float = 0.1, high: float = 0.9) -> Tensor:
+    """The official MultiViT depth input: standardised by the mean / std of the batch's depth values between
+    their 10th and 90th percentiles."""
+    flat = depth.detach().flatten().float()
+    lo, hi = torch.quantile(flat, torch.tensor([low, high], device=flat.device))
+    kept = flat[(flat >= lo) & (flat <= hi)]
+    return (depth - kept.mean()) / kept.std().clamp_min(1e-6)
+
+
 class MultiViTEncoder(nn.Module):
-    def __init__(self, output: str, dim: int = 512, pretrained: str | None = None):
+    """MultiMAE-style MultiViT-B. `input_size`: the official pipeline's resize + centre crop (224: 2 x 196
+    patches); `depth_standardize`: the official depth standardisation (`standardize_depth`)."""
+
+    def __init__(
+        self,
+        output: str,
+        dim: int = 512,
+        pretrained: str | None = None,
+        input_size: int | None = None,
+        depth_standardize: bool = False,
+    ):
         super().__init__()
         from timm.models.vision_transformer import Block
 
+        self.input_size, self.depth_standardize = input_size, depth_standardize
         self.input_adapters = nn.ModuleDict({"rgb": PatchAdapter(3), "depth": PatchAdapter(1)})
         self.global_tokens = nn.Parameter(torch.zeros(1, 1, WIDTH))
         nn.init.trunc_normal_(self.global_tokens, std=0.02)
@@ -141,6 +175,10 @@ class MultiViTEncoder(nn.Module):
     def forward(self, images: Tensor) -> Tensor | tuple[Tensor, Tensor]:
         """rgbd images (B, n_cam, 4, H, W) -> one global token per camera (ACT tokens or DP features)."""
         x = images.flatten(0, 1)
+        if self.input_size:
+            x = resize_center_crop(x, self.input_size)
+        if self.depth_standardize:
+            x = torch.cat([x[:, :3], standardize_depth(x[:, 3:4])], dim=1)
         x = F.pad(x, (0, -x.shape[-1] % PATCH, 0, -x.shape[-2] % PATCH))  # sizes not divisible by 16: pad
         tokens = torch.cat(
             [
@@ -168,11 +206,26 @@ def describe_camera_tokens(
     pretrained="VC-1 / MAE layout",
 )
 def build_vit(
-    obs_space: str, output: str, dim: int, pretrained: str | None = None, image_size: int | tuple[int, int] = 224
+    obs_space: str,
+    output: str,
+    dim: int,
+    pretrained: str | None = None,
+    image_size: int | tuple[int, int] = 224,
+    input_size: int | None = None,
+    zero_extra_channels: bool = False,
 ) -> ViTEncoder:
-    """`image_size`: the camera frame size (height, width) or one side; the patch grid is built for it."""
+    """`image_size`: the camera frame size (height, width) or one side; the patch grid is built for it, or for
+    `input_size` (the official resize + centre crop) when given."""
     size = (image_size, image_size) if isinstance(image_size, int) else tuple(image_size)
-    return ViTEncoder(input_channels(obs_space), output, dim=dim, pretrained=pretrained, image_size=size)
+    return ViTEncoder(
+        input_channels(obs_space),
+        output,
+        dim=dim,
+        pretrained=pretrained,
+        image_size=size,
+        input_size=input_size,
+        zero_extra=zero_extra_channels,
+    )
 
 
 @register_encoder(
@@ -182,5 +235,14 @@ def build_vit(
     describe_camera_tokens,
     pretrained="MultiMAE",
 )
-def build_multivit(obs_space: str, output: str, dim: int, pretrained: str | None = None) -> MultiViTEncoder:
-    return MultiViTEncoder(output, dim=dim, pretrained=pretrained)
+def build_multivit(
+    obs_space: str,
+    output: str,
+    dim: int,
+    pretrained: str | None = None,
+    input_size: int | None = None,
+    depth_standardize: bool = False,
+) -> MultiViTEncoder:
+    return MultiViTEncoder(
+        output, dim=dim, pretrained=pretrained, input_size=input_size, depth_standardize=depth_standardize
+    )

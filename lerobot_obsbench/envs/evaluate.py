@@ -1,7 +1,8 @@
 """Success-rate evaluation of a trained policy on the fixed held-out seeds of an OBSBench task.
 
-Episode i uses seed `eval_seeds(n)[i]` (0, 1, ..., n-1) for the env and for torch's generator, so a given
-checkpoint, task and seed list always gives the same result on the same machine. The policy sees exactly
+Episode i uses seed `eval_seeds(n, split)[i]` (test: 0, 1, ..., n-1; validation, for checkpoint selection:
+10000, ...) for the env and for torch's generator, so a given checkpoint, task and seed list always gives the
+same result on the same machine. The policy sees exactly
 what stock `lerobot-eval` would feed it (LeRobot's `preprocess_observation`, then the checkpoint's own
 pre/post-processors).
 """
@@ -9,6 +10,7 @@ pre/post-processors).
 from __future__ import annotations
 
 import json
+import os
 import time
 from pathlib import Path
 
@@ -58,6 +60,22 @@ def check_compatible(config, env: ObsBenchEnv) -> None:
         raise SchemaError("Policy and env do not match: " + "; ".join(problems) + ".")
 
 
+def write_progress(path: Path, state: dict) -> None:
+    tmp = Path(path).with_suffix(".tmp")
+    tmp.write_text(json.dumps(state))
+    os.replace(tmp, path)
+
+
+def per_seed(records: list[dict]) -> dict:
+    """Compact per-episode outcomes for results files: the seeds, success as a string ('1' success, '.' failure)
+    and the episode lengths, so two evaluations of one checkpoint can be compared seed by seed."""
+    return {
+        "seeds": [r["seed"] for r in records],
+        "success": "".join("1" if r["success"] else "." for r in records),
+        "length": [r["length"] for r in records],
+    }
+
+
 def _batched(obs):
     if isinstance(obs, dict):
         return {k: _batched(v) for k, v in obs.items()}
@@ -76,7 +94,12 @@ def evaluate(
     asset_dir: str | None = None,
     perturbation: str | None = None,
     progress: bool = True,
+    split: str = "test",
+    progress_file: Path | None = None,
 ) -> dict:
+    """Success rate of a checkpoint over the `split`'s first `episodes` seeds (`eval_seeds`). The policy runs on
+    `device` and so does the simulator's renderer (its GPU for cuda). `progress_file` receives
+    {"done", "episodes", "successes"} after every episode (for a grid's live progress)."""
     from lerobot.envs.utils import preprocess_observation
 
     spec = task_spec(task)
@@ -93,12 +116,14 @@ def evaluate(
         asset_dir=asset_dir,
         episode_length=steps,
         perturbation=perturbation,
+        device=device,
     )
     check_compatible(policy.config, env)
     records = []
     start = time.time()
     label = f"eval {task}" + (f" [{perturbation}]" if perturbation not in (None, "none") else "")
-    bar = tqdm(eval_seeds(episodes), desc=label, unit="ep", disable=not progress)
+    seeds = eval_seeds(episodes, split)
+    bar = tqdm(seeds, desc=label, unit="ep", disable=not progress)
     for seed in bar:
         torch.manual_seed(seed)
         obs, info = env.reset(seed=seed)
@@ -130,6 +155,8 @@ def evaluate(
             write_video(str(video_dir / f"{task}_seed{seed}.mp4"), np.stack(frames), fps=CONTROL_FPS)
         wins = sum(r["success"] for r in records)
         bar.set_postfix(success=f"{wins}/{len(records)}")
+        if progress_file is not None:
+            write_progress(progress_file, {"done": len(records), "episodes": len(seeds), "successes": wins})
     env.close()
     successes = sum(r["success"] for r in records)
     low, high = wilson_interval(successes, len(records))
@@ -147,6 +174,7 @@ def evaluate(
         "sub_success": sub,
         "episode_length_mean": round(float(np.mean([r["length"] for r in records])), 2),
         "per_episode": records,
+        "per_seed": per_seed(records),
         "image_size": size,
         "control_mode": control_mode,
         "perturbation": perturbation or "none",

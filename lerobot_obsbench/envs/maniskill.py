@@ -87,6 +87,16 @@ def opencv_intrinsics(sapien_K: np.ndarray) -> np.ndarray:
     return K
 
 
+def render_backend(device: str | None) -> str:
+    """ManiSkill's render backend for a torch device: the GPU for cuda devices, else SAPIEN's CPU renderer;
+    None: a GPU when one is visible."""
+    if device is None:
+        import torch
+
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    return device if device.startswith("cuda") else "cpu"
+
+
 class ObsBenchEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": CONTROL_FPS}
 
@@ -101,8 +111,12 @@ class ObsBenchEnv(gym.Env):
         episode_length: int | None = None,
         render_mode: str | None = "rgb_array",
         perturbation: str | None = None,
+        device: str | None = None,
     ):
         spec = task_spec(task)
+        # SAPIEN renders on the GPU of `device` (cuda, cuda:N), else on the CPU; asked for explicitly, so a
+        # CPU-only machine gets no "CUDA not found, falling back" warning.
+        self.render_backend = render_backend(device)
         if control_mode not in CONTROL_MODES:
             raise ValueError(f"control_mode must be one of {CONTROL_MODES}; got {control_mode!r}")
         import_maniskill(asset_dir)
@@ -164,6 +178,7 @@ class ObsBenchEnv(gym.Env):
                 sensor_configs=sensor_configs,
                 num_envs=1,
                 max_episode_steps=max_steps,
+                render_backend=self.render_backend,
             )
             obs, _ = self._env.reset(seed=0)
         except RuntimeError as err:

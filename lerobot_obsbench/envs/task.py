@@ -21,11 +21,21 @@ VALIDATION_SEED_START = 10_000  # checkpoint selection: 10_000 .. 19_999
 DEMO_SEED_START = 100_000  # demonstrations: 100_000 and up
 
 
-def eval_seeds(n: int) -> list[int]:
-    """The documented held-out evaluation seeds: 0, 1, ..., n-1."""
-    if not 0 < n <= VALIDATION_SEED_START - EVAL_SEED_START:
-        raise ValueError(f"episodes must be in 1..{VALIDATION_SEED_START}; got {n}")
-    return list(range(EVAL_SEED_START, EVAL_SEED_START + n))
+SPLITS = {
+    "test": (EVAL_SEED_START, VALIDATION_SEED_START),
+    "validation": (VALIDATION_SEED_START, 2 * VALIDATION_SEED_START),
+}
+
+
+def eval_seeds(n: int, split: str = "test") -> list[int]:
+    """The documented held-out seeds: test 0, 1, ..., n-1; validation (checkpoint selection) 10000, ...,
+    10000 + n - 1. Neither overlaps the other or the demonstrations' seeds."""
+    if split not in SPLITS:
+        raise ValueError(f"Unknown seed split {split!r}; choose one of {', '.join(SPLITS)}")
+    start, stop = SPLITS[split]
+    if not 0 < n <= stop - start:
+        raise ValueError(f"episodes must be in 1..{stop - start}; got {n}")
+    return list(range(start, start + n))
 
 
 class TaskError(ValueError):

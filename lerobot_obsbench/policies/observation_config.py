@@ -19,9 +19,12 @@ from lerobot_obsbench.encoders import (
 )
 from lerobot_obsbench.policies.onecycle import OneCycleSchedulerConfig
 from lerobot_obsbench.schema import (
+    DEPTH_IMAGE_SPACES,
+    DEPTH_NORMALIZATIONS,
     EE_POSE_SIZE,
     FRAMES,
     POINT_FEATURES,
+    POINT_PIPELINES,
     POINT_SPACES,
     SAMPLING,
     STATE_KEY,
@@ -35,9 +38,19 @@ from lerobot_obsbench.schema import (
 )
 from lerobot_obsbench.spaces import DEFAULT_WORKSPACE, check_geometry
 
-# Config fields that are options of some encoders: a value other than the default is refused where the chosen
-# encoder does not take it (it would be silently ignored).
-ENCODER_FIELDS = ("pretrained", "point_features", "sampling", "num_tokens", "knn")
+# Config field -> the encoder option it sets. A value other than the field's default is refused where the chosen
+# encoder does not take that option (it would be silently ignored). Policy configs add their own.
+ENCODER_FIELDS = {
+    "pretrained": "pretrained",
+    "point_features": "point_features",
+    "sampling": "sampling",
+    "num_tokens": "num_tokens",
+    "knn": "knn",
+    "image_input_size": "input_size",
+    "zero_init_extra_channels": "zero_extra_channels",
+    "point_pipeline": "pipeline",
+}
+POINT_CHOICES = ("point_features", "sampling", "num_tokens", "knn", "point_pipeline")
 
 
 def _plain(value):
@@ -80,10 +93,27 @@ class ObservationConfig:
     workspace: list[float] = field(default_factory=lambda: list(DEFAULT_WORKSPACE))
     # Depth range (near, far) in metres that depth images are clipped to and scaled from.
     depth_clip: list[float] = field(default_factory=lambda: [0.0, 2.0])
+    # Scaling of depth images and pointmap xyz: "clip" (to depth_clip, then [-1, 1]) or "official" (the official
+    # code's (metres - 0.5) / 0.5; MultiViT standardises depth by its batch's 10th-90th percentile statistics).
+    depth_normalization: str = "clip"
+    # Image encoders resize frames to this size first (the official pipeline: 224, i.e. 49 ResNet tokens per
+    # camera; ViT / MultiViT resize to 256 and centre-crop 224). None: frames at their recorded size.
+    image_input_size: int | None = None
+    # Start the stem's extra input channels (depth, xyz) at zero also when training from scratch, as the official
+    # code does (a depth-only stem starts all zero). Pretrained stems always start them at zero.
+    zero_init_extra_channels: bool = False
+    # Point-cloud sampling details: "plugin" (deterministic voxel point at evaluation, FPS from the first point)
+    # or "official" (a random point per voxel also at evaluation, points shuffled in training, the tokenizer's
+    # BatchNorm with PyTorch's defaults and statistics over repeated seed slots, as the official code).
+    point_pipeline: str = "plugin"
     # AdamW of the paper's training recipe (Appendix C): weight decay, betas, eps.
     optimizer_weight_decay: float = 0.05
     optimizer_betas: tuple[float, float] = (0.9, 0.999)
     optimizer_eps: float = 1e-8
+    # Exempt biases and 1-D parameters (norms) from weight decay (the official Diffusion Policy recipe).
+    optimizer_decay_exempt_1d: bool = False
+    # Gradient-norm clipping in LeRobot's trainer (LeRobot's default 10; the official code's 0.5).
+    optimizer_grad_clip_norm: float = 10.0
     # OneCycle schedule of the paper (stepped per batch).
     scheduler_pct_start: float = 0.15
     scheduler_div_factor: float = 100.0
@@ -92,6 +122,7 @@ class ObservationConfig:
     # Fields inherited from the LeRobot config that the plugin replaces: field -> what to use instead. A value
     # other than the default is refused instead of being silently ignored.
     REPLACED_FIELDS: ClassVar[dict[str, str]] = {}
+    ENCODER_FIELDS: ClassVar[dict[str, str]] = ENCODER_FIELDS
 
     def __post_init__(self):
         super().__post_init__()  # the LeRobot config this is mixed into (ACTConfig / DiffusionConfig)
@@ -106,7 +137,29 @@ class ObservationConfig:
             betas=tuple(self.optimizer_betas),
             eps=self.optimizer_eps,
             weight_decay=self.optimizer_weight_decay,
+            grad_clip_norm=self.optimizer_grad_clip_norm,
         )
+
+    def param_groups(self, named_parameters, backbone_prefix: str = "", backbone_lr: float | None = None) -> list[dict]:
+        """AdamW parameter groups: the observation encoder (names starting with `backbone_prefix`) at
+        `backbone_lr` when given, and, with `optimizer_decay_exempt_1d`, biases and 1-D parameters without weight
+        decay."""
+        groups: dict[tuple[bool, bool], list] = {}
+        for name, param in named_parameters:
+            if param.requires_grad:
+                backbone = backbone_lr is not None and name.startswith(backbone_prefix)
+                exempt = self.optimizer_decay_exempt_1d and param.ndim <= 1
+                groups.setdefault((backbone, exempt), []).append(param)
+        out = []
+        for (backbone, exempt), params in sorted(groups.items()):
+            out.append(
+                {
+                    "params": params,
+                    **({"lr": backbone_lr} if backbone else {}),
+                    **({"weight_decay": 0.0} if exempt else {}),
+                }
+            )
+        return out
 
     def get_scheduler_preset(self) -> OneCycleSchedulerConfig:
         return OneCycleSchedulerConfig(
@@ -132,6 +185,12 @@ class ObservationConfig:
         check_choice("frame", self.frame, FRAMES)
         check_choice("point_features", self.point_features, POINT_FEATURES)
         check_choice("sampling", self.sampling, SAMPLING)
+        check_choice("depth_normalization", self.depth_normalization, DEPTH_NORMALIZATIONS)
+        check_choice("point_pipeline", self.point_pipeline, POINT_PIPELINES)
+        if self.image_input_size is not None and self.image_input_size < 16:
+            raise ValueError(f"image_input_size must be >= 16 pixels or None; got {self.image_input_size}")
+        if self.optimizer_grad_clip_norm < 0:
+            raise ValueError(f"optimizer_grad_clip_norm must be >= 0; got {self.optimizer_grad_clip_norm}")
         check_geometry(self.workspace, self.voxel_size, self.depth_clip)
         for name in ("num_tokens", "knn"):
             if getattr(self, name) < 1:
@@ -148,18 +207,23 @@ class ObservationConfig:
                 f"encoder {self.encoder!r} has no pretrained weights (pretrained={self.pretrained!r}); "
                 f"encoders for {self.obs_space!r} that load weights: {', '.join(with_weights) or 'none'}"
             )
-        for name in ENCODER_FIELDS:
-            if name in info.options or not self._non_default(name):
+        for name, option in self.ENCODER_FIELDS.items():
+            if option in info.options or not self._non_default(name):
                 continue
             value, default = getattr(self, name), self.field_default(name)
-            if self.obs_space not in POINT_SPACES:
+            if self.obs_space not in POINT_SPACES and name in POINT_CHOICES:
                 raise ValueError(
                     f"{name}={value!r} is a point-cloud design choice; obs_space={self.obs_space!r} has "
                     f"none (use obs_space='pointcloud' or leave {name}={default!r})"
                 )
             raise ValueError(
                 f"{name}={value!r} is not an option of encoder {self.encoder!r} (it takes "
-                f"{', '.join(info.options)}); leave {name}={default!r}"
+                f"{', '.join(info.options) or 'no options'}); leave {name}={default!r}"
+            )
+        if self._non_default("depth_normalization") and self.obs_space not in DEPTH_IMAGE_SPACES:
+            raise ValueError(
+                f"depth_normalization={self.depth_normalization!r} scales depth / xyz images; obs_space="
+                f"{self.obs_space!r} has none (spaces that do: {', '.join(DEPTH_IMAGE_SPACES)})"
             )
         if self.frame != "world" and self.obs_space not in ("pointcloud", "pointmap"):
             raise ValueError(
@@ -197,8 +261,11 @@ class ObservationConfig:
         return sensor_keys(self.obs_space, self.cameras)
 
     def encoder_options(self) -> dict:
-        """The chosen encoder's options, taken from this config (`image_size` from the camera resolution)."""
-        values = {name: getattr(self, name) for name in (*ENCODER_FIELDS, "voxel_size")}
+        """The chosen encoder's options, taken from this config (`image_size` from the camera resolution, MultiViT's
+        depth standardisation from `depth_normalization`)."""
+        values = {option: getattr(self, name) for name, option in self.ENCODER_FIELDS.items()}
+        values["voxel_size"] = self.voxel_size
+        values["depth_standardize"] = self.depth_normalization == "official"
         if self.camera_resolution:
             values["image_size"] = tuple(self.camera_resolution)
         return {k: v for k, v in values.items() if k in encoder_info(self.encoder).options}

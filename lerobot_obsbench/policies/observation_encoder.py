@@ -9,7 +9,7 @@ from torch import Tensor, nn
 
 from lerobot_obsbench import geometry
 from lerobot_obsbench.encoders import encoder_output, make_encoder
-from lerobot_obsbench.schema import EE_POSE_SIZE, STATE_KEY
+from lerobot_obsbench.schema import BLIND_SPACES, EE_POSE_SIZE, STATE_KEY
 from lerobot_obsbench.spaces import ObservationAdapter
 
 
@@ -54,6 +54,8 @@ class ObservationEncoder(nn.Module):
             workspace=tuple(config.workspace),
             voxel_size=config.voxel_size,
             depth_clip=tuple(config.depth_clip),
+            depth_normalization=config.depth_normalization,
+            point_pipeline=config.point_pipeline,
         )
         options = config.encoder_options()
         self.encoder = make_encoder(config.encoder, config.obs_space, output=output, dim=dim, **options)
@@ -63,7 +65,9 @@ class ObservationEncoder(nn.Module):
         mode = config.normalization_mapping.get(FeatureType.STATE.value, NormalizationMode.IDENTITY)
         stats = (dataset_stats or {}).get(STATE_KEY)
         self.state = StateDenormalizer(config.input_features.get(STATE_KEY), mode, stats)
-        self.input_keys = config.observation_keys() + ([STATE_KEY] if self.adapter.needs_ee_pose else [])
+        # the keys the adapter reads (the blind space reads the state, for the batch size only)
+        reads_state = self.adapter.needs_ee_pose or config.obs_space in BLIND_SPACES
+        self.input_keys = config.observation_keys() + ([STATE_KEY] if reads_state else [])
 
     def forward(self, batch: dict[str, Tensor]) -> Tensor | tuple[Tensor, Tensor]:
         ee_pose = None

@@ -8,7 +8,10 @@ from typing import ClassVar
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.policies.act.configuration_act import ACTConfig
 
-from lerobot_obsbench.policies.observation_config import ObservationConfig
+from lerobot_obsbench.policies.observation_config import ENCODER_FIELDS, ObservationConfig
+from lerobot_obsbench.schema import check_choice
+
+ACTION_LOSSES = ("l1", "mse")
 
 
 @PreTrainedConfig.register_subclass("obs_act")
@@ -35,9 +38,19 @@ class ObsACTConfig(ObservationConfig, ACTConfig):
     optimizer_lr_backbone: float | None = None
     # Local runs must not require --policy.repo_id.
     push_to_hub: bool = False
+    # Action reconstruction loss: "l1" (LeRobot's ACT) or "mse" (the official code's, which the paper reports).
+    action_loss: str = "l1"
+    # Point tokens' positions are the sine embedding of position_scale x seed xyz (metres): 100 maps 1 cm to one
+    # radian unit; the official code embeds raw metres (1.0), where only a few channels vary over a table top.
+    position_scale: float = 100.0
 
     REPLACED_FIELDS: ClassVar[dict[str, str]] = {
         "vision_backbone": "choose the encoder with --policy.encoder (`obsbench encoders` lists them)",
         "pretrained_backbone_weights": "load encoder weights with --policy.pretrained",
         "replace_final_stride_with_dilation": "the plugin's encoders keep their strides",
     }
+    ENCODER_FIELDS: ClassVar[dict[str, str]] = {**ENCODER_FIELDS, "position_scale": "position_scale"}
+
+    def __post_init__(self):
+        super().__post_init__()
+        check_choice("action_loss", self.action_loss, ACTION_LOSSES)

@@ -97,11 +97,13 @@ class ObsACTPolicy(EnvObservationMixin, ACTPolicy):
         self.reset()
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
-        """ACT's training loss: the action reconstruction error over non-padded steps (+ KL weight x KL)."""
+        """ACT's training loss: the action reconstruction error (L1, or the official code's MSE) over non-padded
+        steps, + KL weight x KL."""
         actions_hat, (mu, log_sigma_x2) = self.model(batch)
-        error = F.l1_loss(batch[ACTION], actions_hat, reduction="none")
+        error_fn = F.l1_loss if self.config.action_loss == "l1" else F.mse_loss
+        error = error_fn(batch[ACTION], actions_hat, reduction="none")
         reconstruction = (error * ~batch["action_is_pad"].unsqueeze(-1)).mean()
-        loss_dict = {"l1_loss": reconstruction.item()}
+        loss_dict = {f"{self.config.action_loss}_loss": reconstruction.item()}
         loss = reconstruction
         if self.config.use_vae:
             # KL(latent || N(0, I)), summed over the latent dimensions, averaged over the batch
@@ -111,11 +113,6 @@ class ObsACTPolicy(EnvObservationMixin, ACTPolicy):
         return loss, loss_dict
 
     def get_optim_params(self) -> list[dict]:
-        """One parameter group, or two when the encoder has its own learning rate (`optimizer_lr_backbone`)."""
-        params = [(n, p) for n, p in self.named_parameters() if p.requires_grad]
-        if self.config.optimizer_lr_backbone is None:
-            return [{"params": [p for _, p in params]}]
-        return [
-            {"params": [p for n, p in params if not n.startswith(ENCODER_PREFIX)]},
-            {"params": [p for n, p in params if n.startswith(ENCODER_PREFIX)], "lr": self.config.optimizer_lr_backbone},
-        ]
+        """One parameter group, plus one for the encoder when it has its own learning rate
+        (`optimizer_lr_backbone`)."""
+        return self.config.param_groups(self.named_parameters(), ENCODER_PREFIX, self.config.optimizer_lr_backbone)

@@ -8,10 +8,11 @@ from typing import ClassVar
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
 
-from lerobot_obsbench.policies.observation_config import ObservationConfig
+from lerobot_obsbench.policies.observation_config import ENCODER_FIELDS, ObservationConfig
 from lerobot_obsbench.schema import check_choice
 
 DENOISERS = ("unet", "transformer")
+DP_POINT_HEADS = ("maxpool", "official")
 IMAGE_PIPELINE = (
     "the observation encoder replaces Diffusion Policy's image pipeline (crop, resize, spatial "
     "softmax): choose it with --policy.encoder / --policy.pretrained"
@@ -44,6 +45,9 @@ class ObsDiffusionConfig(ObservationConfig, DiffusionConfig):
     transformer_dim: int = 256
     transformer_attn_dropout: float = 0.3
     transformer_causal: bool = True
+    # Point-cloud conditioning: "maxpool" (a max over the encoded points) or "official" (the official code's
+    # tokenizer + projector to a 128-d feature; with PointNet an extra 512 -> 96 point layer first).
+    dp_point_head: str = "maxpool"
 
     REPLACED_FIELDS: ClassVar[dict[str, str]] = {
         **{
@@ -63,10 +67,12 @@ class ObsDiffusionConfig(ObservationConfig, DiffusionConfig):
         "scheduler_name": "the schedule is the paper's OneCycle (--policy.scheduler_pct_start, ...)",
         "scheduler_warmup_steps": "the schedule is the paper's OneCycle (--policy.scheduler_pct_start, ...)",
     }
+    ENCODER_FIELDS: ClassVar[dict[str, str]] = {**ENCODER_FIELDS, "dp_point_head": "global_head"}
 
     def __post_init__(self):
         super().__post_init__()
         check_choice("denoiser", self.denoiser, DENOISERS)
+        check_choice("dp_point_head", self.dp_point_head, DP_POINT_HEADS)
         if self.denoiser == "transformer" and self.transformer_dim % self.transformer_heads:
             raise ValueError(
                 f"transformer_dim ({self.transformer_dim}) must be divisible by transformer_heads "

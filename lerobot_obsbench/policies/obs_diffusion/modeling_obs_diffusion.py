@@ -103,7 +103,7 @@ class ObsDiffusionModel(DiffusionModel):
         batch_size, n_obs_steps = batch[OBS_STATE].shape[:2]
         # Every observation step is encoded as its own frame.
         frames = {k: batch[k].flatten(0, 1) for k in self.observation.input_keys}
-        obs_feature = self.observation(frames).reshape(batch_size, n_obs_steps, -1)
+        obs_feature = self.observation(frames).reshape(batch_size, n_obs_steps, self.observation.out_dim)
         feats = [batch[OBS_STATE], obs_feature]
         if self.config.env_state_feature:
             feats.append(batch[OBS_ENV_STATE])
@@ -128,6 +128,10 @@ class ObsDiffusionPolicy(EnvObservationMixin, DiffusionPolicy):
         self._queues = None
         self.diffusion = ObsDiffusionModel(config, dataset_stats=kwargs.get("dataset_stats"))
         self.reset()
+
+    def get_optim_params(self) -> list[dict]:
+        """AdamW groups; with `optimizer_decay_exempt_1d`, biases and 1-D parameters without weight decay."""
+        return self.config.param_groups(self.named_parameters())
 
     def reset(self):
         super().reset()

@@ -1,0 +1,85 @@
+"""Where a grid's units of work run: a local process pool (default) or an existing Ray cluster. Both expose the
+same three calls to the driver — submit a unit with its resources, wait for some to finish, fetch a result —
+and neither schedules anything itself: the pool and Ray do.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import multiprocessing
+
+from lerobot_obsbench.bench.units import die_with_parent
+
+ENGINES = ("local", "ray")
+RAY_HELP = "the Ray engine needs Ray: pip install 'lerobot_policy_obsbench[ray]' (or pip install ray)"
+
+
+class LocalEngine:
+    """`workers` spawned worker processes on this machine (each runs one unit at a time)."""
+
+    name = "local"
+
+    def __init__(self, workers: int = 1):
+        self.workers = max(1, workers)
+        self.pool = cf.ProcessPoolExecutor(
+            self.workers, mp_context=multiprocessing.get_context("spawn"), initializer=die_with_parent
+        )
+
+    def submit(self, fn, *args, cpus: float = 1, gpus: float = 0):
+        return self.pool.submit(fn, *args)
+
+    def wait(self, handles: list, timeout: float) -> list:
+        done, _ = cf.wait(handles, timeout=timeout, return_when=cf.FIRST_COMPLETED)
+        return list(done)
+
+    def result(self, handle):
+        return handle.result()
+
+    def shutdown(self) -> None:
+        self.pool.shutdown(wait=False, cancel_futures=True)
+
+
+class RayEngine:
+    """Ray tasks on the cluster at `address` ("auto": the one this machine belongs to; None: a new local Ray
+    instance). Each unit asks for its CPUs and GPUs; Ray places it. The output directory must be visible to
+    every node (a shared filesystem, as on Slurm clusters)."""
+
+    name = "ray"
+
+    def __init__(self, address: str | None = None, **init_kwargs):
+        try:
+            import ray
+        except ImportError as err:
+            raise ImportError(RAY_HELP) from err
+        self.ray = ray
+        if not ray.is_initialized():
+            if address is None:  # a new instance on this machine, reachable on loopback only
+                init_kwargs = {"_node_ip_address": "127.0.0.1", "include_dashboard": False, **init_kwargs}
+            ray.init(address=address, log_to_driver=False, **init_kwargs)
+        self._remote = {}
+
+    def submit(self, fn, *args, cpus: float = 1, gpus: float = 0):
+        if fn not in self._remote:
+            self._remote[fn] = self.ray.remote(fn)
+        return self._remote[fn].options(num_cpus=cpus, num_gpus=gpus, max_retries=0).remote(*args)
+
+    def wait(self, handles: list, timeout: float) -> list:
+        done, _ = self.ray.wait(handles, num_returns=1, timeout=timeout)
+        if done:  # everything else that is ready too
+            more, _ = self.ray.wait(handles, num_returns=len(handles), timeout=0)
+            done = list({id(h): h for h in [*done, *more]}.values())
+        return done
+
+    def result(self, handle):
+        return self.ray.get(handle)
+
+    def shutdown(self) -> None:
+        pass  # the cluster outlives the driver; a local instance stops with this process
+
+
+def make_engine(name: str, workers: int = 1, address: str | None = None):
+    if name == "local":
+        return LocalEngine(workers)
+    if name == "ray":
+        return RayEngine(address)
+    raise ValueError(f"Unknown engine {name!r}; choose one of {', '.join(ENGINES)}")

@@ -1,0 +1,315 @@
+"""The units of work of a grid — recording demonstrations, training a run, evaluating a checkpoint — as top-level
+functions of picklable arguments that return results records, so any engine (a local process pool, Ray on a
+cluster) can run them. Only the grid's driver writes the results file.
+
+Layout of a grid's output directory (shared by every worker; on a cluster it must be a shared filesystem):
+
+    OUT/results.jsonl                       train and eval records (see `results.py`)
+    OUT/demos/<task>-<px>-<cams>-<ctrl>-<N>ep/  scripted demonstrations shared by every run of that task
+    OUT/runs/<run_id>/train/                lerobot-train's output_dir: checkpoints/<step>/, checkpoints/last
+    OUT/runs/<run_id>/train.log             lerobot-train's console output (live progress is read from it)
+    OUT/runs/<run_id>/eval/<eval_id>.json   per-episode results of one evaluation (+ .log; .progress while it runs)
+
+Nothing is lost to a kill: training saves evenly spaced checkpoints and a restarted run resumes from its last
+one with LeRobot's own `--resume`; a checkpoint is never deleted; each evaluation is one record, so a kill
+during evaluation loses only the evaluation in flight.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import json
+import os
+import platform
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from contextlib import redirect_stderr, redirect_stdout
+from datetime import UTC, datetime
+from importlib import metadata
+from pathlib import Path
+
+from lerobot_obsbench.bench.grid import EvalSpec, RunSpec
+
+PACKAGES = ("lerobot", "torch", "mani-skill", "sapien", "lerobot_policy_obsbench")
+CHECKPOINTS = "checkpoints"
+# LeRobot's checkpoint layout (lerobot.utils.constants): checkpoints/<step>/{pretrained_model, training_state}
+PRETRAINED, TRAINING_STATE, TRAINING_STEP = "pretrained_model", "training_state", "training_step.json"
+
+
+class RunError(RuntimeError):
+    """A unit of work failed; its log says why."""
+
+
+def die_with_parent() -> None:
+    """Children (training subprocesses, pool workers) get SIGKILL when their parent dies, so a killed grid
+    leaves no orphan writing into a run directory."""
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except OSError:
+        pass
+
+
+def versions() -> dict[str, str]:
+    found = {"python": platform.python_version()}
+    for name in PACKAGES:
+        try:
+            found[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            found[name] = "not installed"
+    return found
+
+
+def now() -> str:
+    return datetime.now(UTC).isoformat(timespec="seconds")
+
+
+def thread_env(threads: int | None) -> dict[str, str]:
+    """Environment pinning a process's CPU threads (torch, OpenMP, MKL): results then do not depend on which
+    machine or engine ran the unit."""
+    if not threads:
+        return {}
+    return {name: str(threads) for name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
+
+
+# ---- demonstrations ----------------------------------------------------------------------------------------
+
+
+def demos_unit(task: str, episodes: int, path: str, image_size: int, cameras: list[str]) -> dict:
+    """Record (or finish recording) `episodes` scripted demonstrations of `task` into `path` (resumable)."""
+    from lerobot_obsbench.datasets.recording import record_demos
+
+    return record_demos(task, episodes, Path(path), image_size=image_size, cameras=tuple(cameras))
+
+
+def demo_frames(dataset: Path, episodes: int) -> int:
+    from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+
+    return int(sum(LeRobotDatasetMetadata("local/obsbench", root=dataset).episodes["length"][:episodes]))
+
+
+# ---- training ----------------------------------------------------------------------------------------------
+
+
+def _cli_value(value) -> str:
+    return "[" + ",".join(str(v) for v in value) + "]" if isinstance(value, (list, tuple)) else str(value)
+
+
+def train_command(
+    run: RunSpec, dataset: Path, output_dir: Path, steps: int, device: str, save_every: int, loader_workers: int = 0
+) -> list[str]:
+    """Stock lerobot-train for one run (a fresh start; `resume_command` continues one)."""
+    from lerobot_obsbench.presets import preset_args
+
+    overrides = [f"--policy.{k}={_cli_value(v)}" for k, v in run.policy_overrides]
+    sizes = [
+        a
+        for a in preset_args(run.preset, run.policy, run.obs_space, run.encoder)
+        if not a.startswith("--policy.encoder=")
+    ]
+    return [
+        str(Path(sys.executable).parent / "lerobot-train"),
+        f"--policy.type={run.policy}",
+        f"--policy.obs_space={run.obs_space}",
+        *sizes,
+        f"--policy.encoder={run.encoder}",
+        f"--policy.cameras=[{','.join(run.cameras)}]",
+        *overrides,
+        f"--policy.optimizer_lr={run.lr}",
+        f"--policy.device={device}",
+        "--dataset.repo_id=local/obsbench",
+        f"--dataset.root={dataset}",
+        f"--dataset.episodes=[{','.join(str(i) for i in range(run.demos))}]",
+        f"--seed={run.seed}",
+        f"--batch_size={run.batch_size}",
+        f"--steps={steps}",
+        f"--save_freq={save_every}",
+        f"--log_freq={max(min(steps // 50, 200), 1)}",
+        f"--num_workers={loader_workers}",
+        "--wandb.enable=false",
+        f"--output_dir={output_dir}",
+        f"--job_name=obsbench_{run.run_id}",
+    ]
+
+
+def resume_command(output_dir: Path) -> list[str]:
+    """LeRobot's own resume of a run from its last checkpoint (same config, optimizer, scheduler and RNG)."""
+    config = output_dir / CHECKPOINTS / "last" / PRETRAINED / "train_config.json"
+    return [str(Path(sys.executable).parent / "lerobot-train"), f"--config_path={config}", "--resume=true"]
+
+
+def saved_checkpoints(output_dir: Path) -> dict[int, Path]:
+    """step -> pretrained_model directory of every complete checkpoint lerobot-train saved."""
+    found = {}
+    for entry in (output_dir / CHECKPOINTS).glob("[0-9]*"):
+        model = entry / PRETRAINED
+        if entry.is_dir() and (model / "model.safetensors").is_file() and (model / "config.json").is_file():
+            found[int(entry.name)] = model
+    return dict(sorted(found.items()))
+
+
+def resumable_step(output_dir: Path) -> int | None:
+    """The step LeRobot would resume from (its `last` checkpoint's training state), or None."""
+    state = output_dir / CHECKPOINTS / "last" / TRAINING_STATE / TRAINING_STEP
+    if not state.is_file():
+        return None
+    try:
+        return int(json.loads(state.read_text())["step"])
+    except (ValueError, KeyError):
+        return None
+
+
+def save_every(steps: int, checkpoints: int) -> int:
+    """lerobot-train's save_freq for `checkpoints` evenly spaced checkpoints (the last at `steps`)."""
+    return max(1, -(-steps // max(checkpoints, 1)))
+
+
+def train_unit(
+    run_config: dict,
+    dataset: str,
+    out_dir: str,
+    device: str = "cpu",
+    checkpoints: int = 4,
+    loader_workers: int = 0,
+    threads: int | None = None,
+) -> dict:
+    """Train one run with stock lerobot-train (resuming from its last checkpoint after a kill); returns its
+    train record."""
+    run = RunSpec.from_config(run_config)
+    root = Path(out_dir) / "runs" / run.run_id
+    root.mkdir(parents=True, exist_ok=True)
+    (root / "run.json").write_text(json.dumps(run.config(), indent=2) + "\n")
+    output_dir = root / "train"
+    steps = run.steps(demo_frames(Path(dataset), run.demos) if run.budget_unit == "frame_epochs" else None)
+    resumed_from = resumable_step(output_dir)
+    if resumed_from is None:
+        shutil.rmtree(output_dir, ignore_errors=True)  # lerobot-train refuses an existing output_dir
+        command = train_command(
+            run, Path(dataset), output_dir, steps, device, save_every(steps, checkpoints), loader_workers
+        )
+    else:
+        command = resume_command(output_dir)
+    start = time.time()
+    progress = {"steps": steps, "resumed_from": resumed_from or 0, "started": start}
+    (root / "progress.json").write_text(json.dumps(progress) + "\n")
+    with open(root / "train.log", "a") as log:
+        log.write(f"\n=== {now()} {'resuming at step ' + str(resumed_from) if resumed_from else 'starting'} ===\n")
+        log.flush()
+        done = subprocess.run(
+            command,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            preexec_fn=die_with_parent,
+            env={**os.environ, "HF_HUB_OFFLINE": "1", **thread_env(threads)},
+        )
+    saved = saved_checkpoints(output_dir)
+    if done.returncode != 0 or steps not in saved:
+        tail = "".join((root / "train.log").read_text().splitlines(keepends=True)[-15:])
+        raise RunError(
+            f"training of run {run.run_id} ({run.method} on {run.task}) failed with exit code "
+            f"{done.returncode}; log {root / 'train.log'}:\n{tail}"
+        )
+    return {
+        "kind": "train",
+        "run_id": run.run_id,
+        "config": run.config(),
+        "method": run.method,
+        "task": run.task,
+        "train_steps": steps,
+        "samples": steps * run.batch_size,
+        "budget": {run.budget_unit: run.budget},
+        "checkpoint": str(saved[steps]),
+        "checkpoints": {str(s): str(p) for s, p in saved.items()},
+        "resumed_from": resumed_from,
+        "device": device,
+        "timings": {"train_s": round(time.time() - start, 1)},
+        "versions": versions(),
+        "finished_at": now(),
+    }
+
+
+def training_progress(out_dir: Path, run_id: str) -> dict | None:
+    """The live state of a run's training read from its log: {"step", "steps", "loss", "started"} (None before
+    it starts). lerobot-train's progress bar counts from the step it resumed at."""
+    root = Path(out_dir) / "runs" / run_id
+    try:
+        info = json.loads((root / "progress.json").read_text())
+        with open(root / "train.log", "rb") as log:
+            log.seek(max(0, log.seek(0, os.SEEK_END) - 8192))
+            tail = log.read().decode(errors="replace")
+    except (OSError, ValueError):
+        return None
+    counts = re.findall(r"\| *(\d+)/(\d+) \[", tail)
+    losses = re.findall(r"loss:([0-9.eE+-]+)", tail)
+    step = info["resumed_from"] + (int(counts[-1][0]) if counts else 0)
+    return {
+        "step": step,
+        "steps": info["steps"],
+        "loss": float(losses[-1]) if losses else None,
+        "started": info["started"],
+    }
+
+
+# ---- evaluation --------------------------------------------------------------------------------------------
+
+
+def eval_unit(
+    eval_config: dict,
+    run_config: dict,
+    checkpoint: str,
+    checkpoint_step: int,
+    out_dir: str,
+    device: str = "cpu",
+    threads: int | None = None,
+) -> dict:
+    """Evaluate one checkpoint (seed split, episodes, perturbation, episode budget of `eval_config`); returns
+    its eval record. Per-episode results go to runs/<run_id>/eval/<eval_id>.json."""
+    import torch
+
+    from lerobot_obsbench.envs.evaluate import evaluate
+
+    if threads:
+        torch.set_num_threads(threads)
+    spec, run = EvalSpec(**eval_config), RunSpec.from_config(run_config)
+    folder = Path(out_dir) / "runs" / run.run_id / "eval"
+    folder.mkdir(parents=True, exist_ok=True)
+    # the evaluation's own console output (LeRobot's loading messages) goes to its log, not the grid's console
+    with open(folder / f"{spec.eval_id}.log", "w") as log, redirect_stdout(log), redirect_stderr(log):
+        result = evaluate(
+            checkpoint,
+            run.task,
+            spec.episodes,
+            image_size=run.image_size,
+            control_mode=run.control_mode,
+            episode_length=spec.max_steps,
+            device=device,
+            perturbation=spec.perturbation,
+            split=spec.split,
+            progress=False,
+            progress_file=folder / f"{spec.eval_id}.progress",
+        )
+    (folder / f"{spec.eval_id}.json").write_text(json.dumps({**spec.config(), **result}, indent=2) + "\n")
+    keys = ("episodes", "successes", "success_rate", "ci95", "sub_success", "episode_length_mean", "per_seed", "wall_s")
+    return {
+        "kind": "eval",
+        "eval_id": spec.eval_id,
+        **spec.config(),
+        "task": run.task,
+        "method": run.method,
+        "checkpoint_step": checkpoint_step,
+        "device": device,
+        **{k: result[k] for k in keys},
+        "finished_at": now(),
+    }
+
+
+def evaluation_progress(out_dir: Path, run_id: str, eval_id: str) -> dict | None:
+    """{"done", "episodes", "successes"} of a running evaluation (None before it starts)."""
+    try:
+        return json.loads((Path(out_dir) / "runs" / run_id / "eval" / f"{eval_id}.progress").read_text())
+    except (OSError, ValueError):
+        return None
