@@ -162,6 +162,16 @@ def _fps_torch(xyz: Tensor, mask: Tensor, k: int) -> Tensor:
     return idx
 
 
+def _fps_cuda(xyz: Tensor, mask: Tensor, k: int) -> Tensor:
+    """FPS in one Triton kernel launch (the tensor loop is launch-bound on a GPU); the loop where PyTorch was
+    installed without Triton."""
+    try:
+        from lerobot_obsbench import fps_triton
+    except ImportError:
+        return _fps_torch(xyz, mask, k)
+    return fps_triton.farthest_point_sample(xyz, mask, mask.to(torch.uint8).argmax(dim=1), k)
+
+
 def _fps_fpsample(xyz: Tensor, mask: Tensor, k: int) -> Tensor:
     """Per-cloud FPS with `fpsample`'s exact C++ kernel (≈10x faster than a loop of tensor ops on CPU).
 
@@ -194,6 +204,8 @@ def farthest_point_sample(xyz: Tensor, mask: Tensor, k: int) -> tuple[Tensor, Te
         idx = torch.nn.functional.pad(idx, (0, max(0, k - idx.shape[1])))[:, :k]
     elif xyz.device.type == "cpu":
         idx = _fps_fpsample(xyz, mask, k)
+    elif xyz.device.type == "cuda":
+        idx = _fps_cuda(xyz, mask, k)
     else:
         idx = _fps_torch(xyz, mask, k)
     first = idx[:, :1].expand(-1, k)

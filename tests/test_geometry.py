@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 import torch
@@ -131,12 +135,39 @@ def _fps_reference(points: np.ndarray, k: int) -> list[int]:
     return chosen
 
 
-@pytest.mark.parametrize("backend", ["fpsample", "torch"])
-def test_fps_matches_brute_force_on_padded_batches(backend):
+FPS_KERNEL = """
+import sys, torch
+from lerobot_obsbench import fps_triton
+cloud = torch.load(sys.argv[1])
+start = cloud["mask"].to(torch.uint8).argmax(dim=1)
+torch.save(fps_triton.farthest_point_sample(cloud["xyz"], cloud["mask"], start, cloud["k"]), sys.argv[2])
+"""
+
+
+@pytest.fixture
+def fps_triton_interpreted(tmp_path):
+    """The CUDA FPS kernel run by Triton's interpreter on CPU tensors (CI has no GPU; the kernel is the same).
+    A subprocess: the interpreter must be chosen before Triton is first imported."""
+
+    def fps(xyz, mask, k):
+        torch.save({"xyz": xyz, "mask": mask, "k": k}, tmp_path / "cloud.pt")
+        env = {**os.environ, "TRITON_INTERPRET": "1"}
+        command = [sys.executable, "-c", FPS_KERNEL, str(tmp_path / "cloud.pt"), str(tmp_path / "seeds.pt")]
+        subprocess.run(command, env=env, check=True)
+        return torch.load(tmp_path / "seeds.pt")
+
+    return fps
+
+
+@pytest.mark.parametrize("backend", ["fpsample", "torch", "triton"])
+def test_fps_matches_brute_force_on_padded_batches(backend, request):
     xyz, mask = _padded_cloud([500, 300, 40], 30, seed=5)
     k = 64
-    if backend == "torch":
-        idx = geometry._fps_torch(xyz, mask, k)
+    if backend in ("torch", "triton"):  # the GPU paths, run here on CPU tensors
+        if backend == "torch":
+            idx = geometry._fps_torch(xyz, mask, k)
+        else:
+            idx = request.getfixturevalue("fps_triton_interpreted")(xyz, mask, k)
         seed_mask = torch.ones_like(idx, dtype=torch.bool)
         seed_mask[2, 40:] = False
     else:
@@ -155,6 +186,18 @@ def test_fps_matches_brute_force_on_padded_batches(backend):
     if backend == "fpsample":
         # invalid slots repeat the first seed
         assert (idx[2, 40:] == idx[2, 0]).all()
+
+
+def test_fps_kernel_breaks_ties_like_the_tensor_loop_across_chunks(fps_triton_interpreted):
+    """Points on an integer grid tie on exact distances, also between the kernel's 1,024-point chunks: the
+    kernel must pick the lowest index, as the tensor loop (torch.argmax) does, seed for seed."""
+    grid = torch.stack(torch.meshgrid(*[torch.arange(14.0)] * 3, indexing="ij"), -1).reshape(1, -1, 3)
+    xyz = torch.cat([grid, grid.flip(1)])  # 2,744 points: three chunks
+    mask = torch.ones(2, xyz.shape[1], dtype=torch.bool)
+    mask[1, :5] = False  # the second cloud starts at its first valid point
+    got = fps_triton_interpreted(xyz, mask, 40)
+    assert got.tolist() == geometry._fps_torch(xyz, mask, 40).tolist()
+    assert got[1, 0] == 5 and mask[1, got[1]].all()
 
 
 @pytest.mark.parametrize("backend", ["kdtree", "dense"])
