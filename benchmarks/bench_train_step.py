@@ -1,8 +1,13 @@
-"""Forward + backward time per training batch for every (observation space, encoder) pair of obs_act and
-obs_diffusion, side by side with LeRobot's stock ACT-ResNet18 / Diffusion-ResNet18 at the same batch and the
-same transformer / UNet sizes, on ray-cast cluttered 128² frames.
+"""Time per training step (forward, backward and the preset's optimizer step) for every (observation space,
+encoder) pair of obs_act and obs_diffusion, side by side with LeRobot's stock ACT-ResNet18 / Diffusion-ResNet18 at
+the same batch and the same transformer / UNet sizes, on ray-cast cluttered 128² frames.
 
     .venv/bin/python -m benchmarks.bench_train_step [--batch 8] [--device cpu] [--preset cpu] [--out FILE]
+
+`--preset paper` times the paper grid's encoders (ResNet-50, ViT-B, MultiViT-B, PointNet, SpUNet-34) at the
+paper's batches (ACT 16, DP 64) and also reports each row against rgb/ResNet-50; it is meant for a GPU
+(`--device cuda`). SpUNet-34 rows need spconv's CUDA wheel (`pip install '.[cuda]'`) and are left out, with the
+reason in the JSON, where spconv cannot run on the device.
 """
 
 from __future__ import annotations
@@ -26,13 +31,28 @@ from lerobot_obsbench.policies.obs_diffusion.modeling_obs_diffusion import ObsDi
 from lerobot_obsbench.presets import model_sizes, preset_overrides
 
 CAM = "base_camera"
-PAIRS = [
-    ("rgb", "resnet18"),
-    ("depth", "resnet18"),
-    ("rgbd", "resnet18"),
-    ("pointmap", "resnet18"),
-    ("pointcloud", "pointnet"),
-]
+PAIRS = {
+    "cpu": [
+        ("rgb", "resnet18"),
+        ("depth", "resnet18"),
+        ("rgbd", "resnet18"),
+        ("pointmap", "resnet18"),
+        ("pointcloud", "pointnet"),
+    ],
+    # paper-main's encoders for every space (the first row is the reference of `vs_rgb_resnet50`)
+    "paper": [
+        ("rgb", "resnet50"),
+        ("rgb", "vit_b"),
+        ("depth", "resnet50"),
+        ("rgbd", "resnet50"),
+        ("rgbd", "multivit_b"),
+        ("pointmap", "resnet50"),
+        ("pointcloud", "pointnet"),
+        ("pointcloud", "spunet34"),
+    ],
+}
+# paper-main's batches (bench/grids/paper-main.yaml)
+PAPER_BATCH = {"act": 16, "diffusion": 64}
 
 
 def features(size: int) -> tuple[dict, dict]:
@@ -66,21 +86,36 @@ def make_batch(frames: dict, batch: int, horizon: int, n_obs: int | None, device
 
 
 def step_time(policy, batch: dict, repeats: int) -> dict:
+    """One optimizer step as lerobot-train takes it (the policy's own optimizer preset), timed."""
     policy.train()
+    optimizer = policy.config.get_optimizer_preset().build(policy.get_optim_params())
 
     def step():
-        policy.zero_grad(set_to_none=True)
+        optimizer.zero_grad(set_to_none=True)
         loss, _ = policy.forward(batch)
         loss.backward()
+        optimizer.step()
         if batch["action"].is_cuda:
             torch.cuda.synchronize()
 
-    return timed(step, repeats=repeats)
+    result = timed(step, repeats=repeats, warmup=2)
+    return {**result, "steps_per_s": round(1000 / result["median_ms"], 2)}
+
+
+def spconv_problem(device: torch.device) -> str | None:
+    """Why SpUNet-34 cannot be timed on `device`, or None when it can."""
+    try:
+        import spconv.pytorch  # noqa: F401
+    except ImportError as error:
+        return f"spconv is not installed ({error})"
+    if device.type == "cuda" and not torch.cuda.is_available():
+        return "CUDA is not available"
+    return None
 
 
 def main() -> None:
     parser = argparse.ArgumentParser()
-    parser.add_argument("--batch", type=int, default=8)
+    parser.add_argument("--batch", type=int, help="default: 8 (cpu preset), the paper's batches (paper preset)")
     parser.add_argument("--size", type=int, default=128)
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--preset", default="cpu", choices=["cpu", "paper"])
@@ -89,9 +124,13 @@ def main() -> None:
     args = parser.parse_args()
     torch.manual_seed(0)
     device = torch.device(args.device)
-    frames = cluttered_frames(load_synthetic(), args.batch, args.size)
+    if device.type == "cuda":  # as lerobot-train sets them
+        torch.backends.cudnn.benchmark = True
+        torch.backends.cuda.matmul.allow_tf32 = True
+    batches = {kind: args.batch or (PAPER_BATCH[kind] if args.preset == "paper" else 8) for kind in PAPER_BATCH}
+    frames = cluttered_frames(load_synthetic(), max(batches.values()), args.size)
     inputs, outputs = features(args.size)
-    rows = []
+    rows, skipped = [], []
     for kind, stock_cls, stock_policy, ours_cls, ours_policy in (
         ("act", ACTConfig, ACTPolicy, ObsACTConfig, ObsACTPolicy),
         ("diffusion", DiffusionConfig, DiffusionPolicy, ObsDiffusionConfig, ObsDiffusionPolicy),
@@ -115,7 +154,7 @@ def main() -> None:
         stock = stock_policy(stock_cfg).to(device)
         horizon = stock_cfg.chunk_size if kind == "act" else stock_cfg.horizon
         n_obs = None if kind == "act" else stock_cfg.n_obs_steps
-        batch = make_batch(frames, args.batch, horizon, n_obs, device)
+        batch = make_batch(frames, batches[kind], horizon, n_obs, device)
         if kind == "diffusion":
             batch["observation.images"] = batch[f"observation.images.{CAM}"].unsqueeze(2)
         base = step_time(stock, batch, args.repeats)
@@ -130,8 +169,13 @@ def main() -> None:
             }
         )
         print(f"stock {kind}-resnet18: {base['median_ms']:.0f} ms")
-        pairs = PAIRS + ([("pointcloud", "pointnet@2048")] if kind == "act" else [])
+        pairs = PAIRS[args.preset] + ([("pointcloud", "pointnet@2048")] if kind == "act" else [])
+        reference = None
         for space, encoder in pairs:
+            if encoder == "spunet34" and (problem := spconv_problem(device)):
+                skipped.append({"policy": f"obs_{kind}", "obs_space": space, "encoder": encoder, "why": problem})
+                print(f"obs_{kind} {space:10s} {encoder:14s}: skipped, {problem}")
+                continue
             extra = dict(
                 preset_overrides(args.preset, f"obs_{kind}", space, encoder.split("@")[0]),
                 encoder=encoder.split("@")[0],
@@ -148,21 +192,37 @@ def main() -> None:
             )
             policy = ours_policy(cfg).to(device)
             t = step_time(policy, batch, args.repeats)
+            reference = reference or t
             ratio = round(t["median_ms"] / base["median_ms"], 2)
             rows.append(
                 {
                     "policy": f"obs_{kind}",
                     "obs_space": space,
                     "encoder": encoder,
+                    "batch": batches[kind],
                     "params_M": round(sum(p.numel() for p in policy.parameters()) / 1e6, 2),
                     **t,
                     "ratio": ratio,
+                    f"vs_{pairs[0][0]}_{pairs[0][1]}": round(t["median_ms"] / reference["median_ms"], 2),
                 }
             )
-            print(f"obs_{kind} {space:10s} {encoder:14s}: {t['median_ms']:.0f} ms ({ratio}x stock)")
+            print(
+                f"obs_{kind} {space:10s} {encoder:14s}: {t['median_ms']:.0f} ms, {t['steps_per_s']} steps/s "
+                f"({ratio}x stock)"
+            )
+            del policy
+            if device.type == "cuda":
+                torch.cuda.empty_cache()
     write(
         f"train_step_{args.device}_{args.preset}",
-        {"batch": args.batch, "image_size": args.size, "preset": args.preset, "target_ratio": 2.0, "rows": rows},
+        {
+            "batch": batches,
+            "image_size": args.size,
+            "preset": args.preset,
+            "target_ratio": 2.0,
+            "rows": rows,
+            "skipped": skipped,
+        },
         args.out,
     )
 

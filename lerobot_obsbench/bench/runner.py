@@ -33,17 +33,22 @@ from lerobot_obsbench.bench.units import (
 RESULTS_FILE = "results.jsonl"
 DEMO_FRAMES_PER_EPISODE = 30  # for estimates before the demonstrations exist
 
-# Rough throughput for `--dry-run` estimates and the grid's ETA: training samples per second by (device kind,
-# preset), per space kind; evaluation environment steps per second by device kind. CPU: this 2-core machine
-# (README benchmarks); cuda: one H200 (README, "GPU numbers").
+# Rough throughput for `--dry-run` estimates and the grid's ETA until a run reports its own rate: training samples
+# per second by (device kind, preset) and space kind. From measured model steps (forward, backward, optimizer;
+# data loading not counted): cpu on this 2-core machine (benchmarks/results/train_step_cpu_cpu.json); cuda paper
+# on one H200 (benchmarks/results/train_step_cuda_paper.json: the ACT rates at batch 16, slower than DP's at 64;
+# point = PointNet and SpUNet-34 averaged). Not measured on a GPU: the smaller presets and the blind space, given
+# the paper's image rate (an upper bound on their time).
 TRAIN_SAMPLES_PER_SECOND = {
     ("cpu", "tiny"): {"image": 100.0, "point": 100.0, "none": 200.0},
     ("cpu", "cpu"): {"image": 60.0, "point": 45.0, "none": 150.0},
     ("cpu", "paper"): {"image": 2.5, "point": 0.5, "none": 50.0},
-    ("cuda", "tiny"): {"image": 400.0, "point": 300.0, "none": 800.0},
-    ("cuda", "cpu"): {"image": 400.0, "point": 300.0, "none": 800.0},
-    ("cuda", "paper"): {"image": 150.0, "point": 60.0, "none": 800.0},
+    ("cuda", "tiny"): {"image": 270.0, "point": 270.0, "none": 270.0},
+    ("cuda", "cpu"): {"image": 270.0, "point": 270.0, "none": 270.0},
+    ("cuda", "paper"): {"image": 270.0, "point": 100.0, "none": 270.0},
 }
+# Evaluation environment steps per second: cpu from this machine (benchmarks/results/env.json: ~26 rendered steps/s
+# at 128², less the policy's time); cuda a guess (ManiSkill was not run on the GPU machine).
 ENV_STEPS_PER_SECOND = {"cpu": 20.0, "cuda": 60.0}
 
 
