@@ -137,11 +137,11 @@ class ObsBenchEnv(gym.Env):
             sapien.render.set_ray_tracing_samples_per_pixel(int(self.perturbation.scalar))
             sapien.render.set_ray_tracing_denoiser("none")
             sensor_configs["shader_pack"] = "rt"
-        obs = self._make(task, control_mode, sensor_configs, episode_length or spec.max_steps)
+        obs = self._make(control_mode, sensor_configs, episode_length or spec.max_steps)
         if self.perturbation and self.perturbation.kind.startswith("camera"):
             sensor_configs.update(camera_overrides(self._env.unwrapped, self.cameras, self.perturbation))
             self._env.close()
-            obs = self._make(task, control_mode, sensor_configs, episode_length or spec.max_steps)
+            obs = self._make(control_mode, sensor_configs, episode_length or spec.max_steps)
         if self.perturbation and self.perturbation.kind in ("light", "background"):
             apply_scene_perturbation(self._env.unwrapped, self.perturbation)
         available = list(obs["sensor_data"])
@@ -168,10 +168,10 @@ class ObsBenchEnv(gym.Env):
         self.observation_space = gym.spaces.Dict(spaces)
         self._milestones: dict[str, bool] = {}
 
-    def _make(self, task: str, control_mode: str, sensor_configs: dict, max_steps: int) -> dict:
+    def _make(self, control_mode: str, sensor_configs: dict, max_steps: int) -> dict:
         try:
             self._env = gym.make(
-                task,
+                self.spec_.env_id,
                 obs_mode="rgb+depth",
                 control_mode=control_mode,
                 render_mode="rgb_array",
@@ -221,6 +221,8 @@ class ObsBenchEnv(gym.Env):
         if seed is None and self._next_seed is not None:
             seed, self._next_seed = self._next_seed, self._next_seed + 1
         obs, info = self._env.reset(seed=seed, options=options)
+        if self.spec_.initialize(self.unwrapped_ms):
+            obs = self.unwrapped_ms.get_obs()
         self._milestones = {}
         return self.to_env_observation(self.schema_frame(obs)), self._info(info)
 

@@ -54,8 +54,10 @@ def first(value) -> np.ndarray:
 class Task:
     """One OBSBench task on ManiSkill3. Subclasses set the class attributes and document the task."""
 
-    # ManiSkill's task id, e.g. "PickCube-v1".
+    # OBSBench's task id, e.g. "PickCube-v1" (ManiSkill's, unless the task is a variant of a ManiSkill task).
     name: ClassVar[str]
+    # The ManiSkill task it runs; None: `name`.
+    maniskill_id: ClassVar[str | None] = None
     # Steps per episode (ManiSkill's own budget for the task).
     max_steps: ClassVar[int]
     # One line for dataset task strings and listings.
@@ -70,6 +72,15 @@ class Task:
     expert: ClassVar[type | None] = None
     # ManiSkill asset download id when the task needs downloaded assets.
     asset_group: ClassVar[str | None] = None
+
+    @property
+    def env_id(self) -> str:
+        return self.maniskill_id or self.name
+
+    def initialize(self, ms_env) -> bool:
+        """After ManiSkill's own reset: change the episode's initial state (a variant's randomization, drawn from
+        `ms_env._episode_rng`, so it follows the episode seed). Returns whether it changed anything."""
+        return False
 
     def milestone(self, name: str, ms_env, info: dict, success: bool) -> bool:
         """Whether milestone `name` holds at this step (`ms_env`: the unwrapped ManiSkill env)."""

@@ -9,6 +9,11 @@ the cube, so the policy finds both by seeing the cube (there is no goal observat
 
 **Expert:** get behind the cube with the gripper closed and low, then push along +x to the target. 20/20 over
 seeds 100000.. (mean 12.3 steps).
+
+PushCubeWide-v1 (an OBSBench variant, the main job's task): the same task with the cube's y drawn from
+[-0.2, 0.2] instead of [-0.1, 0.1] (x unchanged; the target still 0.2 m in +x of the cube). A policy that does
+not see the cube pushes where it usually is and misses more often, so seeing policies separate from blind ones.
+The same expert solves it: 20/20 over seeds 100000.. (`obsbench demos --task PushCubeWide-v1 --episodes 20`).
 """
 
 from __future__ import annotations
@@ -44,3 +49,25 @@ class PushCube(Task):
     max_steps = 50
     description = "push the cube into the goal region"
     expert = PushCubeExpert
+
+
+@register_task
+class PushCubeWide(PushCube):
+    name = "PushCubeWide-v1"
+    maniskill_id = "PushCube-v1"
+    description = "push the cube, placed anywhere in a 40 cm wide strip, into the goal region"
+    # half extents of the cube's xy spawn box (ManiSkill's: 0.1, 0.1)
+    spawn_half_size = (0.1, 0.2)
+
+    def initialize(self, ms_env) -> bool:
+        from mani_skill.utils.structs import Pose
+
+        x, y = (ms_env._episode_rng.uniform(-h, h) for h in self.spawn_half_size)
+        cube = first(ms_env.obj.pose.p)
+        goal = first(ms_env.goal_region.pose.p)
+        offset = goal - cube  # the target keeps its place relative to the cube
+        ms_env.obj.set_pose(Pose.create_from_pq(p=[[x, y, cube[2]]], q=ms_env.obj.pose.q))
+        ms_env.goal_region.set_pose(
+            Pose.create_from_pq(p=[[x + offset[0], y + offset[1], goal[2]]], q=ms_env.goal_region.pose.q)
+        )
+        return True
