@@ -78,9 +78,10 @@ def pose_to_matrix(position: Tensor, quat: Tensor) -> Tensor:
 
 
 def crop_mask(points: Tensor, mask: Tensor, box: Tensor | tuple | list) -> Tensor:
-    """Mask of points (B, N, 3) inside an axis-aligned box (xmin, xmax, ymin, ymax, zmin, zmax)."""
-    box = torch.as_tensor(box, dtype=points.dtype, device=points.device).reshape(3, 2)
-    inside = ((points >= box[:, 0]) & (points <= box[:, 1])).all(dim=-1)
+    """Mask of points (B, N, 3) inside an axis-aligned box (xmin, xmax, ymin, ymax, zmin, zmax): one box (6,) for
+    the batch or one per cloud (B, 6)."""
+    box = torch.as_tensor(box, dtype=points.dtype, device=points.device).reshape(-1, 1, 3, 2)
+    inside = ((points >= box[..., 0]) & (points <= box[..., 1])).all(dim=-1)
     return mask & inside
 
 

@@ -7,7 +7,8 @@
     pointmap   -> images (B, n_cam, 6, H, W)   rgb ‖ xyz (metres, chosen frame; 0 where depth is invalid;
                                                official normalization: (xyz - 0.5) / 0.5)
     pointcloud -> PointCloud(xyz (B, N, 3), features (B, N, C), mask (B, N)): all cameras fused, cropped to the
-                  workspace box (world frame, which also drops the ground), moved to the chosen frame, one point
+                  workspace box (world frame, which also drops the ground; in training optionally jittered by
+                  `workspace_jitter` per bound, as the official real-robot code), moved to the chosen frame, one point
                   per voxel (random in training; with `point_pipeline="official"` also in evaluation, and
                   points shuffled in training); features are rgb in [-1, 1] and/or xyz in metres.
     none       -> (B, 0): the blind control sees nothing (the batch size comes from observation.state).
@@ -66,6 +67,7 @@ class ObservationAdapter(nn.Module):
         depth_clip: tuple[float, float] = (0.0, 2.0),
         depth_normalization: str = "clip",
         point_pipeline: str = "plugin",
+        workspace_jitter: float = 0.0,
     ):
         super().__init__()
         if not cameras and obs_space not in BLIND_SPACES:
@@ -80,6 +82,9 @@ class ObservationAdapter(nn.Module):
         self.depth_clip = (float(depth_clip[0]), float(depth_clip[1]))
         self.depth_normalization = check_choice("depth_normalization", depth_normalization, DEPTH_NORMALIZATIONS)
         self.official_points = check_choice("point_pipeline", point_pipeline, POINT_PIPELINES) == "official"
+        if workspace_jitter < 0:
+            raise ValueError(f"workspace_jitter must be >= 0 metres; got {workspace_jitter}")
+        self.workspace_jitter = float(workspace_jitter)
         self.register_buffer("rgb_mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("rgb_std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
 
@@ -184,7 +189,10 @@ class ObservationAdapter(nn.Module):
             rgb.append(colour.permute(0, 2, 3, 1).flatten(1, 2) * 2 - 1)
             valid.append(ok.flatten(1))
         xyz, rgb, valid = torch.cat(xyz, 1), torch.cat(rgb, 1), torch.cat(valid, 1)
-        valid = geometry.crop_mask(xyz, valid, self.workspace)
+        box = torch.tensor(self.workspace, dtype=xyz.dtype, device=xyz.device)
+        if self.training and self.workspace_jitter > 0:  # each bound moves by up to ±jitter, per sample
+            box = box + (torch.rand(len(xyz), 6, device=xyz.device, dtype=xyz.dtype) * 2 - 1) * self.workspace_jitter
+        valid = geometry.crop_mask(xyz, valid, box)
         empty = ~valid.any(dim=1)
         if bool(empty.any()):
             raise SchemaError(

@@ -83,6 +83,11 @@ def test_crop_mask_keeps_only_points_inside_the_box():
     mask = torch.tensor([[True, True, True, False]])
     got = geometry.crop_mask(pts, mask, (-1, 1, -1, 1, 0.005, 1))
     assert got.tolist() == [[True, False, False, False]]
+    # one box per cloud
+    two = torch.cat([pts, pts])
+    boxes = torch.tensor([[-1, 1, -1, 1, 0.005, 1], [-3, 3, -1, 1, 0.0, 1]])
+    got = geometry.crop_mask(two, torch.cat([mask, mask]), boxes)
+    assert got.tolist() == [[True, False, False, False], [True, True, True, False]]
 
 
 def _padded_cloud(n_valid, n_pad, seed):

@@ -57,6 +57,18 @@ def test_pointcloud_is_cropped_voxelised_and_finds_the_cube(batch):
     assert (cloud.features[~cloud.mask] == 0).all()
 
 
+def test_workspace_jitter_moves_the_crop_in_training_only(batch):
+    """The official real-robot code jitters its crop box by ±1 cm in training; evaluation crops exactly."""
+    tight = (-0.5, 0.5, -0.5, 0.5, 0.008, 0.5)  # zmin near the table: a centimetre down keeps table points
+    adapter = ObservationAdapter("pointcloud", [CAM], workspace=tight, workspace_jitter=0.01)
+    counts = {int(adapter.train()(batch).mask.sum()) for _ in range(6)}
+    assert len(counts) > 1
+    exact = ObservationAdapter("pointcloud", [CAM], workspace=tight).eval()(batch).mask.sum()
+    assert all(int(adapter.eval()(batch).mask.sum()) == int(exact) for _ in range(3))
+    with pytest.raises(ValueError, match="workspace_jitter must be >= 0"):
+        ObservationAdapter("pointcloud", [CAM], workspace_jitter=-0.01)
+
+
 @pytest.mark.parametrize("features,channels", [("xyz", 3), ("rgb", 3), ("rgb+xyz", 6)])
 def test_point_feature_choices(batch, features, channels):
     cloud = ObservationAdapter("pointcloud", [CAM], point_features=features, workspace=WORKSPACE).eval()(batch)

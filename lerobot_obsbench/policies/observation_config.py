@@ -91,6 +91,9 @@ class ObservationConfig:
     # Workspace crop box in the world frame (xmin, xmax, ymin, ymax, zmin, zmax), metres; zmin > 0 drops the
     # ground / table plane.
     workspace: list[float] = field(default_factory=lambda: list(DEFAULT_WORKSPACE))
+    # Training-time jitter of each workspace bound, metres (uniform in ±jitter per sample; the official
+    # real-robot code uses 0.01). Point clouds only.
+    workspace_jitter: float = 0.0
     # Depth range (near, far) in metres that depth images are clipped to and scaled from.
     depth_clip: list[float] = field(default_factory=lambda: [0.0, 2.0])
     # Scaling of depth images and pointmap xyz: "clip" (to depth_clip, then [-1, 1]) or "official" (the official
@@ -192,6 +195,8 @@ class ObservationConfig:
         if self.optimizer_grad_clip_norm < 0:
             raise ValueError(f"optimizer_grad_clip_norm must be >= 0; got {self.optimizer_grad_clip_norm}")
         check_geometry(self.workspace, self.voxel_size, self.depth_clip)
+        if self.workspace_jitter < 0:
+            raise ValueError(f"workspace_jitter must be >= 0 metres; got {self.workspace_jitter}")
         for name in ("num_tokens", "knn"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1; got {getattr(self, name)}")
@@ -224,6 +229,11 @@ class ObservationConfig:
             raise ValueError(
                 f"depth_normalization={self.depth_normalization!r} scales depth / xyz images; obs_space="
                 f"{self.obs_space!r} has none (spaces that do: {', '.join(DEPTH_IMAGE_SPACES)})"
+            )
+        if self.workspace_jitter and self.obs_space not in POINT_SPACES:
+            raise ValueError(
+                f"workspace_jitter={self.workspace_jitter} jitters the point-cloud crop; obs_space={self.obs_space!r} "
+                "crops nothing (use obs_space='pointcloud' or leave workspace_jitter=0)"
             )
         if self.frame != "world" and self.obs_space not in ("pointcloud", "pointmap"):
             raise ValueError(

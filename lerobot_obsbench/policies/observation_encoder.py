@@ -56,6 +56,7 @@ class ObservationEncoder(nn.Module):
             depth_clip=tuple(config.depth_clip),
             depth_normalization=config.depth_normalization,
             point_pipeline=config.point_pipeline,
+            workspace_jitter=config.workspace_jitter,
         )
         options = config.encoder_options()
         self.encoder = make_encoder(config.encoder, config.obs_space, output=output, dim=dim, **options)
