@@ -1,17 +1,27 @@
 """lerobot-obsbench: OBSBench as a LeRobot plugin.
 
-Importing the package registers the `obs_act` and `obs_diffusion` policy types, the `obsbench` env type and
-the encoder registry with LeRobot, and applies the plugin's narrow LeRobot data-loading fixes (see
-`lerobot_obsbench.patches`).
+Importing the package registers the `obs_act` and `obs_diffusion` policy types, the `obsbench` env type, the
+real-robot hardware types (`obsbench_realsense_rgbd`, `obsbench_koch_follower`, `obsbench_bi_koch_follower`,
+`obsbench_bi_koch_leader`) and the encoder registry with LeRobot, and applies the plugin's narrow LeRobot
+data-loading fixes (see `lerobot_obsbench.patches`).
 """
 
 from lerobot_obsbench import patches
 
 patches.apply()
 
-from lerobot_obsbench import encoders, envs, policies  # noqa: E402  (registration side effects)
+from lerobot_obsbench import encoders, envs, policies, robots  # noqa: E402  (registration side effects)
 from lerobot_obsbench.encoders import available_encoders, make_encoder  # noqa: E402
 from lerobot_obsbench.spaces import ObservationAdapter  # noqa: E402
 
 __version__ = "0.1.0"
-__all__ = ["ObservationAdapter", "available_encoders", "encoders", "envs", "make_encoder", "policies", "__version__"]
+__all__ = [
+    "ObservationAdapter",
+    "available_encoders",
+    "encoders",
+    "envs",
+    "make_encoder",
+    "policies",
+    "robots",
+    "__version__",
+]

@@ -204,6 +204,120 @@ def cmd_convert(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_find_cameras(args: argparse.Namespace) -> int:
+    from lerobot_obsbench.robots.extrinsics import extrinsics_path
+    from lerobot_obsbench.robots.realsense.realsense_rgbd import RealSenseRGBDCamera
+
+    found = RealSenseRGBDCamera.find_cameras()
+    if not found:
+        print("no RealSense camera found (check the USB 3 cable and that libusb-1.0-0 is installed)")
+    for camera in found:
+        path = extrinsics_path(camera["id"], args.extrinsics_dir)
+        calibrated = f"extrinsics: {path}" if path.is_file() else "not calibrated: obsbench calibrate-cameras"
+        print(f"{camera['id']}  {camera['name']}  {camera.get('usb_type', '')}  {calibrated}")
+    return 0
+
+
+def cmd_calibrate_cameras(args: argparse.Namespace) -> int:
+    import time
+
+    import cv2
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    from lerobot_obsbench.robots.extrinsics import BoardSpec, calibrate, save_extrinsics
+    from lerobot_obsbench.robots.realsense.config_realsense_rgbd import RealSenseRGBDCameraConfig
+    from lerobot_obsbench.robots.realsense.realsense_rgbd import RealSenseRGBDCamera
+
+    spec = BoardSpec(*args.squares, args.square_length, args.marker_length, args.dictionary)
+    if args.print_board:
+        cv2.imwrite(str(args.print_board), spec.image())
+        print(f"{args.print_board}: print at 100 % and check that a square measures {args.square_length * 1000:g} mm")
+        return 0
+    if not args.serial and not args.playback:
+        raise SystemExit("obsbench calibrate-cameras: give --serial (see `obsbench find-cameras`) or --playback FILE")
+    board_to_world = np.eye(4)
+    x, y, z, roll, pitch, yaw = args.board_pose
+    board_to_world[:3, :3] = Rotation.from_euler("xyz", [roll, pitch, yaw], degrees=True).as_matrix()
+    board_to_world[:3, 3] = [x, y, z]
+    config = RealSenseRGBDCameraConfig(
+        serial_number=args.serial or "",
+        playback_file=args.playback,
+        width=args.width,
+        height=args.height,
+        fps=args.fps,
+        downsample=1,
+        warmup_s=0.0 if args.playback else 1.0,  # a recording needs no auto-exposure to settle
+    )
+    camera = RealSenseRGBDCamera(config)
+    camera.connect()
+    try:
+        images = []
+        for _ in range(args.views):
+            images.append(camera.async_read(timeout_ms=2000))
+            time.sleep(args.interval)
+        K, serial = camera.K, camera.serial_number
+    finally:
+        camera.disconnect()
+    result = calibrate(
+        images,
+        K,
+        serial,
+        spec,
+        board_to_world,
+        min_views=args.min_views,
+        min_corners=args.min_corners,
+        max_reprojection_px=args.max_reprojection,
+    )
+    path = save_extrinsics(result, args.out)
+    height = result.matrix()[2, 3]
+    print(
+        f"camera {serial}: {result.views_used}/{args.views} views, reprojection {result.reprojection_px:.2f} px, "
+        f"spread {result.spread_mm:.2f} mm; camera {height:.3f} m above the board plane -> {path}"
+    )
+    return 0
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    from lerobot_obsbench.datasets.view import dataset_frame, live_frame, log_frame
+    from lerobot_obsbench.presets import preset_overrides
+
+    workspace = args.workspace
+    if workspace is None and args.preset:
+        workspace = preset_overrides(args.preset, POLICY_TYPES[0], "pointcloud").get("workspace")
+    if workspace is None:
+        from lerobot_obsbench.spaces import DEFAULT_WORKSPACE
+
+        workspace = DEFAULT_WORKSPACE
+    if args.root:
+        frame = dataset_frame(args.root, args.frame, args.repo_id)
+    else:
+        from lerobot_obsbench.robots.realsense.config_realsense_rgbd import RealSenseRGBDCameraConfig
+
+        if not args.serial and not args.playback:
+            raise SystemExit("obsbench view: give --root DATASET, or --serial SERIAL / --playback FILE for a camera")
+        sources = [("serial_number", s) for s in args.serial] + [("playback_file", f) for f in args.playback]
+        configs = {
+            f"camera_{i}": RealSenseRGBDCameraConfig(
+                **{field: value},
+                width=args.width,
+                height=args.height,
+                fps=args.fps,
+                downsample=args.downsample,
+                warmup_s=0.0 if field == "playback_file" else 1.0,
+            )
+            for i, (field, value) in enumerate(sources)
+        }
+        frame = live_frame(configs, args.extrinsics_dir)
+    shown = log_frame(frame, workspace, args.voxel_size, args.cameras or None, args.out)
+    where = f"saved to {shown['rrd']} (open with `rerun {shown['rrd']}`)" if shown["rrd"] else "sent to the viewer"
+    print(
+        f"cameras {', '.join(shown['cameras'])}: {shown['points_all']} points, {shown['points_policy']} after the "
+        f"workspace {list(workspace)} and {args.voxel_size * 1000:g} mm voxels; {where}"
+    )
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from lerobot_obsbench.bench.engines import ENGINES
     from lerobot_obsbench.bench.grid import preset_grids
@@ -216,6 +330,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="obsbench", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     sub = parser.add_subparsers(dest="command", required=True)
+    for name, (_, summary) in HARDWARE_COMMANDS.items():
+        sub.add_parser(name, help=f"{summary} (LeRobot-style options: obsbench {name} --help)", add_help=False)
 
     p = sub.add_parser("encoders", help="list registered encoders and the observation spaces they accept")
     p.add_argument("--obs-space", choices=OBS_SPACES, help="only encoders accepting this space")
@@ -356,6 +472,65 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("results", type=Path)
     p.set_defaults(func=cmd_convert)
 
+    p = sub.add_parser("find-cameras", help="list connected RealSense cameras (serials) and their calibration")
+    p.add_argument(
+        "--extrinsics-dir", default=None, help="where calibrate-cameras saved extrinsics (default: LeRobot's)"
+    )
+    p.set_defaults(func=cmd_find_cameras)
+
+    p = sub.add_parser(
+        "calibrate-cameras",
+        help="camera -> world extrinsics from a ChArUco board on the table, averaged over several views, saved per "
+        "camera serial (the robot records cam2world from it)",
+    )
+    p.add_argument("--serial", default=None, help="camera serial (obsbench find-cameras)")
+    p.add_argument("--playback", default=None, help="a recorded .bag instead of a live camera")
+    p.add_argument("--width", type=int, default=1280)
+    p.add_argument("--height", type=int, default=720)
+    p.add_argument("--fps", type=int, default=30)
+    p.add_argument("--views", type=int, default=10, help="frames to average")
+    p.add_argument("--interval", type=float, default=0.1, help="seconds between views")
+    p.add_argument("--min-views", type=int, default=5)
+    p.add_argument("--min-corners", type=int, default=12, help="refuse a view with fewer ChArUco corners")
+    p.add_argument("--max-reprojection", type=float, default=1.0, help="refuse a view above this RMS error (px)")
+    p.add_argument("--squares", type=int, nargs=2, default=(5, 7), metavar=("X", "Y"))
+    p.add_argument("--square-length", type=float, default=0.035, help="metres, as printed")
+    p.add_argument("--marker-length", type=float, default=0.026, help="metres, as printed")
+    p.add_argument("--dictionary", default="DICT_4X4_50")
+    p.add_argument(
+        "--board-pose",
+        type=float,
+        nargs=6,
+        default=(0, 0, 0, 0, 0, 0),
+        metavar=("X", "Y", "Z", "ROLL", "PITCH", "YAW"),
+        help="the board frame's pose in the robot-base frame (metres, degrees); default: the board is the world",
+    )
+    p.add_argument("--out", default=None, help="extrinsics directory (default: LeRobot's calibration dir)")
+    p.add_argument("--print-board", type=Path, default=None, help="write the board image to print, and exit")
+    p.set_defaults(func=cmd_calibrate_cameras)
+
+    p = sub.add_parser(
+        "view",
+        help="see what the policy sees: colour, depth, the fused point cloud before and after the crop, the "
+        "workspace box and the world axes, in rerun (an .rrd file when there is no display)",
+    )
+    p.add_argument("--root", default=None, help="a LeRobotDataset (simulated or real)")
+    p.add_argument("--repo-id", default="local/dataset")
+    p.add_argument("--frame", type=int, default=0, help="global frame index in the dataset")
+    p.add_argument("--serial", nargs="*", default=[], help="live RealSense cameras instead of a dataset")
+    p.add_argument("--playback", nargs="*", default=[], help="recorded .bag files instead of a dataset")
+    p.add_argument("--width", type=int, default=640)
+    p.add_argument("--height", type=int, default=480)
+    p.add_argument("--fps", type=int, default=30)
+    p.add_argument("--downsample", type=int, default=2)
+    p.add_argument("--extrinsics-dir", default=None)
+    p.add_argument("--cameras", nargs="*", default=[], help="cameras to fuse (default: all with depth)")
+    p.add_argument("--workspace", type=float, nargs=6, default=None, help="crop box (default: the preset's)")
+    p.add_argument("--preset", default=None, help="take the crop box from this preset (e.g. real-one-arm)")
+    p.add_argument("--voxel-size", type=float, default=0.005)
+    p.add_argument("--out", type=Path, default=None, help="save an .rrd file (default without a display)")
+    p.set_defaults(func=cmd_view)
+
     p = sub.add_parser("preset", help="print the --policy.* overrides of a named preset, to paste into lerobot-train")
     p.add_argument("--preset", default="cpu", choices=tuple(PRESETS))
     p.add_argument("--policy", default=POLICY_TYPES[0], choices=POLICY_TYPES)
@@ -365,7 +540,21 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# Commands configured like LeRobot's own (draccus: --robot.type=..., --teleop.*, --dataset.*), run by their modules.
+HARDWARE_COMMANDS = {
+    "record": ("lerobot_obsbench.datasets.teleop_recording", "teleoperated demonstrations on a real robot"),
+    "rollout": ("lerobot_obsbench.robots.rollout", "run a checkpoint on a real robot, the operator judging"),
+}
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and argv[0] in HARDWARE_COMMANDS:
+        import importlib
+
+        import lerobot_obsbench
+
+        return importlib.import_module(HARDWARE_COMMANDS[argv[0]][0]).main(argv[1:])
     args = build_parser().parse_args(argv)
     import lerobot_obsbench  # noqa: F401  (registers policies and encoders)
     from lerobot_obsbench.bench.grid import GridError

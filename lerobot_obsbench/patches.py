@@ -9,6 +9,12 @@
    `query_hf_dataset_by_column` reads only the queried column. Drop both once LeRobot fixes this upstream.
 2. Video decoding. LeRobot picks torchcodec whenever the package is installed, even when its FFmpeg shared
    libraries are missing and it cannot load; then decode with the `pyav` backend instead of crashing.
+3. Aggregating datasets with array features (`array_safe_aggregation()`, used only around the plugin's own
+   calls of `aggregate_datasets`): LeRobot copies data files through pandas unless the dataset has images, and
+   pandas cannot write HF `Array3D` columns (depth) back to parquet. Inside the context the data files take
+   LeRobot's own image path (read and written through `datasets`), which keeps those columns' types. (Appending
+   to an existing data file still concatenates data frames, which pandas cannot do with those columns either:
+   callers give each source its own data file.)
 
 Both replace LeRobot functions for every process that imports the plugin (LeRobot's plugin discovery imports it
 into every `lerobot-*` command), so `apply()` patches only the LeRobot version they were written and tested
@@ -124,6 +130,44 @@ def apply(lerobot_version: str | None = None) -> bool:
     _set(query_hf_dataset_by_column, load_hf_dataset_fast)
     lerobot_dataset.decode_video_frames = decode_video_frames_with_fallback
     return True
+
+
+class _ArrayFeaturesAsImages:
+    """A destination dataset's metadata as `aggregate_data` sees it: "with images" when it has array features, so
+    that its data files go through `datasets` rather than pandas."""
+
+    def __init__(self, meta):
+        self._meta = meta
+
+    def __getattr__(self, name):
+        return getattr(self._meta, name)
+
+    @property
+    def image_keys(self) -> list[str]:
+        arrays = [k for k, ft in self._meta.features.items() if ft["dtype"] not in ("video", "image", "string")]
+        arrays = [k for k in arrays if len(ft_shape(self._meta.features[k])) >= 2]
+        return self._meta.image_keys or arrays
+
+
+def ft_shape(feature: dict) -> tuple:
+    return tuple(feature.get("shape") or ())
+
+
+@contextlib.contextmanager
+def array_safe_aggregation():
+    """LeRobot's `aggregate_datasets`, made to keep array (depth) columns; see fix 3 of the module docstring."""
+    from lerobot.datasets import aggregate
+
+    stock = aggregate.aggregate_data
+
+    def aggregate_data(src_meta, dst_meta, *args, **kwargs):
+        return stock(src_meta, _ArrayFeaturesAsImages(dst_meta), *args, **kwargs)
+
+    aggregate.aggregate_data = aggregate_data
+    try:
+        yield
+    finally:
+        aggregate.aggregate_data = stock
 
 
 @contextlib.contextmanager

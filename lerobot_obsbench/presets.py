@@ -8,6 +8,8 @@
 - `cpu`: small models that train in minutes on a 2-core CPU (README main job): ResNet-18 instead of ResNet-50
   for images, 128 point tokens. Not the paper's setting: results from it are smoke tests, never a reproduction.
 - `tiny`: the smallest sizes that still exercise every code path (tests).
+- `real-one-arm` / `real-two-arms`: the paper's real-robot tasks (Reach / Pick Cube, Fold Cloth; see
+  `lerobot_obsbench.robots.tasks`): ACT at lr 5e-5 with chunk 20 / 40, the crop box in the ChArUco world frame.
 
 A preset sets only fields that the run's space and encoder use (the policies refuse values they would ignore):
 overrides are keyed by policy type ("*": both) and by the kind of space — "all", "image" (rgb, depth, rgbd,
@@ -32,6 +34,26 @@ PRESETS: dict[str, dict[tuple[str, str], dict[str, object]]] = {
         ("*", "point"): {"point_pipeline": "official"},
         (ACT, "point"): {"position_scale": 1.0},
         (DP, "point"): {"dp_point_head": "official"},
+    },
+    # The paper's real-robot set-up (ACT, lr 5e-5, ResNet-50 / PointNet, two RealSense cameras; DESIGN §12):
+    # crop boxes in the ChArUco board's world frame (z up), jittered by ±1 cm in training.
+    "real-one-arm": {
+        (ACT, "all"): {"chunk_size": 20, "optimizer_lr": 5e-5},
+        ("*", "image"): {"encoder": "resnet50"},
+        ("*", "point"): {
+            "encoder": "pointnet",
+            "workspace": [-0.15, 0.27, -0.5, 0.1, 0.005, 0.3],
+            "workspace_jitter": 0.01,
+        },
+    },
+    "real-two-arms": {
+        (ACT, "all"): {"chunk_size": 40, "optimizer_lr": 5e-5},
+        ("*", "image"): {"encoder": "resnet50"},
+        ("*", "point"): {
+            "encoder": "pointnet",
+            "workspace": [-0.15, 0.35, -0.5, 0.3, 0.005, 0.3],
+            "workspace_jitter": 0.01,
+        },
     },
     "cpu": {
         (ACT, "all"): {

@@ -61,10 +61,12 @@ def ray_box(origin, dirs, lo, hi):
 def render(K, cam2world, size, boxes):
     """Ray-cast the table plane and boxes [(center, half, rgb)].
 
-    Returns rgb (H,W,3) uint8, depth (H,W,1) uint16 mm (0 = no return), and the exact world hit points (H,W,3)
-    (NaN where there is no return). Pixel (u, v) = (column, row); K maps camera points to pixel centres.
+    `size`: H = W, or (H, W). Returns rgb (H,W,3) uint8, depth (H,W,1) uint16 mm (0 = no return), and the exact
+    world hit points (H,W,3) (NaN where there is no return). Pixel (u, v) = (column, row); K maps camera points to
+    pixel centres.
     """
-    v, u = np.mgrid[0:size, 0:size].astype(np.float64)
+    height, width = (size, size) if isinstance(size, int) else size
+    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
     d_cam = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1).reshape(-1, 3)
     dirs = d_cam @ cam2world[:3, :3].T  # unnormalised: t is then the depth along the optical axis
     origin = cam2world[:3, 3]
@@ -80,7 +82,7 @@ def render(K, cam2world, size, boxes):
     rgb[~valid] = 0
     depth = np.where(valid, np.round(t * 1000.0), 0).astype(np.uint16)
     points = origin + dirs * np.where(valid, t, np.nan)[:, None]
-    return rgb.reshape(size, size, 3), depth.reshape(size, size, 1), points.reshape(size, size, 3)
+    return rgb.reshape(height, width, 3), depth.reshape(height, width, 1), points.reshape(height, width, 3)
 
 
 def quat_z(angle: float) -> np.ndarray:

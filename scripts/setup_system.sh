@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
-# System packages the simulator needs on a CPU-only Debian 12 (bookworm) machine: SAPIEN renders through Vulkan,
-# and bookworm's own lavapipe (Mesa 22) lacks descriptorBindingPartiallyBound, so Mesa 25's lavapipe comes from
-# Debian's bookworm-backports suite, added to the machine's existing Debian apt source (its mirror is kept).
+# System packages on a CPU-only Debian 12 (bookworm) machine:
+# - the simulator: SAPIEN renders through Vulkan, and bookworm's own lavapipe (Mesa 22) lacks
+#   descriptorBindingPartiallyBound, so Mesa 25's lavapipe comes from Debian's bookworm-backports suite, added to
+#   the machine's existing Debian apt source (its mirror is kept);
+# - RealSense cameras: pyrealsense2 loads libusb-1.0 (Debian's libusb-1.0-0).
 # Idempotent; run as root (or with sudo available).
 set -euo pipefail
 
@@ -16,21 +18,32 @@ lavapipe_ok() {
     [ -n "$version" ] && dpkg --compare-versions "$version" ge 24 && dpkg-query -W libvulkan1 >/dev/null 2>&1
 }
 
-if lavapipe_ok; then
-    echo "setup_system: Mesa lavapipe $(dpkg-query -W -f='${Version}' mesa-vulkan-drivers) already installed"
+libusb_ok() {
+    dpkg-query -W -f='${Status}' libusb-1.0-0 2>/dev/null | grep -q "install ok installed"
+}
+
+if lavapipe_ok && libusb_ok; then
+    echo "setup_system: Mesa lavapipe $(dpkg-query -W -f='${Version}' mesa-vulkan-drivers) and libusb-1.0-0 already installed"
     exit 0
 fi
-
-if [ ! -f "$SOURCES" ]; then
-    echo "setup_system: $SOURCES not found. Add Debian's bookworm-backports suite to your apt sources, then run:" >&2
-    echo "  apt-get update && apt-get install -y -t bookworm-backports mesa-vulkan-drivers libvulkan1" >&2
-    exit 1
-fi
-if ! grep -q "bookworm-backports" "$SOURCES"; then
-    # Append the suite to the Suites line of the main Debian entry (the one listing bookworm-updates).
-    $SUDO sed -i '0,/^Suites:.*bookworm-updates.*$/s//& bookworm-backports/' "$SOURCES"
-fi
 export DEBIAN_FRONTEND=noninteractive
-$SUDO apt-get update -qq
-$SUDO apt-get install -y -qq -t bookworm-backports mesa-vulkan-drivers libvulkan1 >/dev/null
-echo "setup_system: installed Mesa lavapipe $(dpkg-query -W -f='${Version}' mesa-vulkan-drivers)"
+
+if ! lavapipe_ok; then
+    if [ ! -f "$SOURCES" ]; then
+        echo "setup_system: $SOURCES not found. Add Debian's bookworm-backports suite to your apt sources, then run:" >&2
+        echo "  apt-get update && apt-get install -y -t bookworm-backports mesa-vulkan-drivers libvulkan1" >&2
+        exit 1
+    fi
+    if ! grep -q "bookworm-backports" "$SOURCES"; then
+        # Append the suite to the Suites line of the main Debian entry (the one listing bookworm-updates).
+        $SUDO sed -i '0,/^Suites:.*bookworm-updates.*$/s//& bookworm-backports/' "$SOURCES"
+    fi
+    $SUDO apt-get update -qq
+    $SUDO apt-get install -y -qq -t bookworm-backports mesa-vulkan-drivers libvulkan1 >/dev/null
+    echo "setup_system: installed Mesa lavapipe $(dpkg-query -W -f='${Version}' mesa-vulkan-drivers)"
+fi
+if ! libusb_ok; then
+    $SUDO apt-get update -qq
+    $SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null
+    echo "setup_system: installed libusb-1.0-0"
+fi

@@ -20,19 +20,9 @@ from tqdm import tqdm
 
 from lerobot_obsbench.envs.maniskill import CONTROL_FPS, DEFAULT_CONTROL_MODE, STATE_DIM, ObsBenchEnv
 from lerobot_obsbench.envs.task import eval_seeds, task_spec
+from lerobot_obsbench.policies.loading import load_policy
 from lerobot_obsbench.schema import SchemaError
 from lerobot_obsbench.stats import wilson_interval
-
-
-def load_policy(path: str | Path, device: str = "cpu"):
-    from lerobot.configs.policies import PreTrainedConfig
-    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
-
-    config = PreTrainedConfig.from_pretrained(path)
-    config.device = device
-    policy = get_policy_class(config.type).from_pretrained(path, config=config).eval()
-    pre, post = make_pre_post_processors(policy.config, pretrained_path=str(path))
-    return policy, pre, post
 
 
 def check_compatible(config, env: ObsBenchEnv) -> None:

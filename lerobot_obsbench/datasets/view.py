@@ -1,0 +1,133 @@
+"""See what the policy sees (`obsbench view`): for a dataset frame (simulated or real) or a live RGB-D camera, the
+colour and depth images, each camera's pose and frustum, the fused point cloud in the world frame before and
+after the workspace crop and voxel sampling, the workspace box and the robot-base (world) axes, in rerun (what
+LeRobot's dataset viewer uses). Setting a crop box on a real table is guesswork without it.
+
+With a display the viewer opens; without one (or with --out) the recording is saved to an .rrd file to open with
+`rerun FILE.rrd` elsewhere.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from lerobot_obsbench.schema import (
+    cam2world_key,
+    cameras_in,
+    depth_key,
+    image_key,
+    intrinsics_key,
+)
+from lerobot_obsbench.spaces import ObservationAdapter
+
+AXIS_COLOURS = [[230, 40, 40], [40, 200, 40], [40, 80, 230]]
+
+
+def dataset_frame(root: str | Path, index: int, repo_id: str = "local/dataset") -> dict[str, np.ndarray]:
+    """One frame of a LeRobotDataset as schema-keyed numpy arrays (colour HWC uint8)."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    dataset = LeRobotDataset(repo_id, root=root)
+    if not 0 <= index < len(dataset):
+        raise IndexError(f"frame {index} is outside the dataset's {len(dataset)} frames")
+    item = dataset[index]
+    frame = {}
+    for key, value in item.items():
+        if not isinstance(value, torch.Tensor):
+            continue
+        value = value.numpy()
+        if key.startswith(image_key("")) and value.ndim == 3 and value.shape[0] == 3:
+            value = (np.clip(value.transpose(1, 2, 0), 0, 1) * 255).round().astype(np.uint8)
+        frame[key] = value
+    return frame
+
+
+def to_batch(frame: Mapping[str, np.ndarray]) -> dict[str, torch.Tensor]:
+    batch = {}
+    for key, value in frame.items():
+        tensor = torch.from_numpy(np.ascontiguousarray(value))
+        if key.startswith(image_key("")):
+            tensor = tensor.permute(2, 0, 1).float() / 255.0
+        batch[key] = tensor.unsqueeze(0)
+    return batch
+
+
+def clouds(frame: Mapping[str, np.ndarray], cameras: list[str], workspace, voxel_size: float):
+    """(uncropped world points (N, 3), after crop + voxel (xyz (M, 3), rgb uint8 (M, 3))) of the fused cameras."""
+    batch = to_batch(frame)
+    everything = ObservationAdapter("pointcloud", cameras, workspace=(-1e3, 1e3, -1e3, 1e3, -1e3, 1e3), voxel_size=1e-4)
+    wide = everything.eval()(batch)
+    cropped = ObservationAdapter("pointcloud", cameras, workspace=tuple(workspace), voxel_size=voxel_size).eval()
+    cloud = cropped(batch)
+    mask = cloud.mask[0]
+    rgb = ((cloud.features[0][mask][:, :3] + 1) * 127.5).round().clamp(0, 255).to(torch.uint8)
+    return wide.xyz[0][wide.mask[0]].numpy(), cloud.xyz[0][mask].numpy(), rgb.numpy()
+
+
+def log_frame(
+    frame: Mapping[str, np.ndarray],
+    workspace,
+    voxel_size: float = 0.005,
+    cameras: list[str] | None = None,
+    out: str | Path | None = None,
+    spawn: bool | None = None,
+) -> dict:
+    """Log one schema frame to rerun; returns what was logged (point counts, cameras, the .rrd path)."""
+    import rerun as rr
+
+    cameras = cameras or [c for c in cameras_in(frame) if depth_key(c) in frame and cam2world_key(c) in frame]
+    if not cameras:
+        raise ValueError(
+            "the frame has no camera with depth, intrinsics and cam2world (schema keys observation.depth.<cam>, "
+            "observation.intrinsics.<cam>, observation.cam2world.<cam>): nothing to fuse."
+        )
+    rr.init("obsbench_view", spawn=False)
+    display = bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+    if out is None and not (display if spawn is None else spawn):
+        out = Path("obsbench_view.rrd")
+    if out is not None:
+        rr.save(str(out))
+    else:
+        rr.spawn()
+    rr.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    rr.log("world/robot_base", rr.Arrows3D(origins=np.zeros((3, 3)), vectors=np.eye(3) * 0.1, colors=AXIS_COLOURS))
+    box = np.asarray(workspace, dtype=float).reshape(3, 2)
+    rr.log("world/workspace", rr.Boxes3D(centers=[box.mean(axis=1)], half_sizes=[(box[:, 1] - box[:, 0]) / 2]))
+    for cam in cameras:
+        pose = np.asarray(frame[cam2world_key(cam)], dtype=float)
+        K = np.asarray(frame[intrinsics_key(cam)], dtype=float)
+        depth = np.asarray(frame[depth_key(cam)])[..., 0]
+        rr.log(f"world/{cam}", rr.Transform3D(translation=pose[:3, 3], mat3x3=pose[:3, :3]))
+        rr.log(f"world/{cam}/image", rr.Pinhole(image_from_camera=K, resolution=[depth.shape[1], depth.shape[0]]))
+        if image_key(cam) in frame:
+            rr.log(f"world/{cam}/image/rgb", rr.Image(frame[image_key(cam)]))
+        rr.log(f"world/{cam}/image/depth", rr.DepthImage(depth, meter=1000.0))
+    everything, xyz, rgb = clouds(frame, cameras, workspace, voxel_size)
+    rr.log("world/points_all", rr.Points3D(everything, colors=[[140, 140, 140]], radii=0.001))
+    rr.log("world/points_policy", rr.Points3D(xyz, colors=rgb, radii=0.003))
+    rr.disconnect()
+    return {
+        "cameras": cameras,
+        "points_all": len(everything),
+        "points_policy": len(xyz),
+        "rrd": str(out) if out else None,
+    }
+
+
+def live_frame(camera_configs: dict, extrinsics_dir: str | Path | None = None) -> dict[str, np.ndarray]:
+    """One frameset of live (or played-back) RGB-D cameras with their saved extrinsics, as schema keys."""
+    from lerobot_obsbench.robots.frames import schema_key
+    from lerobot_obsbench.robots.scene_cameras import SceneCameras
+
+    scene = SceneCameras(camera_configs, extrinsics_dir)
+    scene.connect()
+    try:
+        observation = scene.read()
+    finally:
+        scene.disconnect()
+    return {schema_key(key): value for key, value in observation.items()}

@@ -1,0 +1,226 @@
+"""Run a trained checkpoint on a real robot for N episodes, the operator judging each (DESIGN §12).
+
+Per episode: the operator starts it, the policy acts at `fps` for at most `episode_time_s` (ACT checkpoints keep
+their temporal ensembling: one new chunk per step, averaged), the arm returns to its rest pose (the joint
+positions at connection), and the operator marks success or failure. The robot's own `max_relative_target`
+limits every commanded step. Keys: right arrow ends the episode early, Escape aborts it (the arm returns to rest
+and no further episode starts). Writes one video per episode and the same results JSON as `obsbench eval`
+(success rate with its Wilson 95% interval).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from lerobot.robots import RobotConfig
+
+from lerobot_obsbench.policies.loading import load_policy
+from lerobot_obsbench.robots.checks import RobotSetupError, require_calibrated
+from lerobot_obsbench.robots.frames import action_dict, dataset_features, motor_keys, observation_frame
+from lerobot_obsbench.robots.tasks import real_task
+from lerobot_obsbench.schema import ACTION_KEY, DEPTH_PREFIX, IMAGE_PREFIX, STATE_KEY, frame_to_env_observation
+from lerobot_obsbench.stats import wilson_interval
+
+
+@dataclass
+class RolloutConfig:
+    """`obsbench rollout --robot.type=... --policy_path=CKPT --task=pick_cube`"""
+
+    robot: RobotConfig
+    # The checkpoint's pretrained_model directory (from lerobot-train).
+    policy_path: str
+    # One of the paper's real tasks (sets episodes and episode time), or None to set them here.
+    task: str | None = None
+    episodes: int = 20
+    episode_time_s: float = 30.0
+    fps: int = 30
+    # Seconds to move back to the rest pose after each episode.
+    rest_time_s: float = 3.0
+    device: str = "cpu"
+    # Where the results JSON and the per-episode videos go.
+    out: str = "outputs/rollouts"
+
+    def __post_init__(self) -> None:
+        if self.task is not None:
+            task = real_task(self.task)
+            self.episodes, self.episode_time_s = task.rollouts, task.episode_time_s
+
+
+@dataclass
+class Operator:
+    """How episodes start and are judged: the keyboard by default, a script in tests."""
+
+    start: Callable[[int], bool] = field(default=lambda i: input(f"ENTER starts episode {i + 1} (q quits): ") != "q")
+    judge: Callable[[int], bool] = field(default=lambda i: input("success? [y/N]: ").strip().lower() == "y")
+    events: dict = field(
+        default_factory=lambda: {"exit_early": False, "rerecord_episode": False, "stop_recording": False}
+    )
+
+
+def policy_keys(policy_config) -> list[str]:
+    """Every observation key the policy reads: its sensors (the plugin's policies keep them out of
+    `input_features`, away from LeRobot's normaliser) and the rest."""
+    sensors = policy_config.observation_keys() if hasattr(policy_config, "observation_keys") else []
+    return [*sensors, *policy_config.input_features]
+
+
+def check_policy_fits_robot(policy_config, robot) -> None:
+    """Refuse a checkpoint whose cameras, resolution, state or action size differ from the robot's."""
+    features = dataset_features(robot)
+    resolution = list(getattr(policy_config, "camera_resolution", []) or [])
+    problems = []
+    for key in policy_keys(policy_config):
+        if key not in features:
+            problems.append(f"the policy reads {key}, the robot gives no such key (cameras: {sorted(robot.cameras)})")
+        elif key == STATE_KEY:
+            want, have = policy_config.input_features[key].shape[0], features[key]["shape"][0]
+            if want != have:
+                problems.append(f"the policy expects a {want}-value {key}, the robot has {have} joints")
+        elif key.startswith((IMAGE_PREFIX, DEPTH_PREFIX)) and resolution:
+            have = list(features[key]["shape"][:2])
+            if have != resolution:
+                problems.append(
+                    f"{key}: the policy was trained on {resolution[0]}x{resolution[1]}, the robot gives "
+                    f"{have[0]}x{have[1]}"
+                )
+    action = policy_config.output_features.get(ACTION_KEY)
+    if action is not None and action.shape[0] != len(robot.action_features):
+        problems.append(
+            f"the policy outputs {action.shape[0]} actions, the robot has {len(robot.action_features)} motors"
+        )
+    if problems:
+        raise RobotSetupError(
+            "Checkpoint and robot do not match: " + "; ".join(problems) + ". Roll out on the set-up the dataset was "
+            "recorded with (same cameras, --robot.cameras.*.width/height/downsample, same arms)."
+        )
+
+
+def to_batch(frame: dict) -> dict:
+    """A schema frame as the policy's preprocessor takes it in simulated evaluation: the env-style observation
+    (sensors in the passthrough) of a batch of one, through LeRobot's `preprocess_observation`."""
+    from lerobot.envs.utils import preprocess_observation
+
+    def batched(value):
+        return {k: batched(v) for k, v in value.items()} if isinstance(value, dict) else np.expand_dims(value, 0)
+
+    return preprocess_observation(batched(frame_to_env_observation(frame)))
+
+
+def return_to_rest(robot, rest: dict, seconds: float, fps: int) -> None:
+    """Move the joints linearly from where they are to `rest` over `seconds` (max_relative_target still applies)."""
+    from lerobot.utils.robot_utils import precise_sleep
+
+    motors = motor_keys(robot)
+    now = robot.get_observation()
+    start = np.array([now[m] for m in motors])
+    goal = np.array([rest[m] for m in motors])
+    steps = max(int(seconds * fps), 1)
+    for i in range(1, steps + 1):
+        robot.send_action(action_dict(start + (goal - start) * i / steps, motors))
+        precise_sleep(1.0 / fps)
+
+
+def rollout(robot, config: RolloutConfig, operator: Operator | None = None) -> dict:
+    """Run `config.episodes` episodes; returns (and writes to config.out) the results."""
+    from lerobot.utils.io_utils import write_video
+    from lerobot.utils.robot_utils import precise_sleep
+
+    operator = operator or Operator(events=_keyboard_events())
+    events = operator.events
+    policy, pre, post = load_policy(config.policy_path, config.device)
+    out = Path(config.out)
+    out.mkdir(parents=True, exist_ok=True)
+    robot.connect(calibrate=False)
+    records = []
+    try:
+        require_calibrated(robot, "robot")
+        check_policy_fits_robot(policy.config, robot)
+        motors = motor_keys(robot)
+        first = robot.get_observation()
+        rest = {m: first[m] for m in motors}
+        keys = policy_keys(policy.config)
+        video_camera = next((k for k in keys if k.startswith(IMAGE_PREFIX)), None)
+        for episode in range(config.episodes):
+            if events["stop_recording"] or not operator.start(episode):
+                break
+            policy.reset()
+            frames, steps, aborted = [], 0, False
+            start = time.perf_counter()
+            while time.perf_counter() - start < config.episode_time_s and not events["exit_early"]:
+                t0 = time.perf_counter()
+                frame = observation_frame(robot.get_observation(), motors)
+                if video_camera is not None:
+                    frames.append(frame[video_camera])
+                batch = pre(to_batch({k: frame[k] for k in keys}))
+                with torch.inference_mode():
+                    action = post(policy.select_action(batch))
+                robot.send_action(action_dict(action[0].cpu().numpy(), motors))
+                steps += 1
+                precise_sleep(max(1.0 / config.fps - (time.perf_counter() - t0), 0.0))
+            aborted = events["stop_recording"]
+            events["exit_early"] = False
+            seconds = time.perf_counter() - start
+            return_to_rest(robot, rest, config.rest_time_s, config.fps)
+            video = None
+            if frames:
+                video = out / f"episode_{episode:03d}.mp4"
+                write_video(str(video), np.stack(frames), fps=config.fps)
+            success = False if aborted else bool(operator.judge(episode))
+            records.append(
+                {
+                    "episode": episode,
+                    "success": success,
+                    "steps": steps,
+                    "seconds": round(seconds, 2),
+                    "aborted": aborted,
+                    "video": str(video) if video else None,
+                }
+            )
+            if aborted:
+                break
+    finally:
+        robot.disconnect()
+    result = summarize(records, config, policy.config)
+    (out / "results.json").write_text(json.dumps(result, indent=2) + "\n")
+    return result
+
+
+def summarize(records: list[dict], config: RolloutConfig, policy_config) -> dict:
+    successes = sum(r["success"] for r in records)
+    n = len(records)
+    low, high = wilson_interval(successes, n) if n else (0.0, 1.0)
+    return {
+        "task": config.task,
+        "policy_path": str(config.policy_path),
+        "obs_space": getattr(policy_config, "obs_space", None),
+        "policy_type": policy_config.type,
+        "episodes": n,
+        "successes": successes,
+        "success_rate": round(successes / n, 4) if n else None,
+        "ci95": [round(low, 4), round(high, 4)],
+        "per_episode": records,
+        "robot": config.robot.type,
+        "fps": config.fps,
+    }
+
+
+def _keyboard_events() -> dict:
+    from lerobot.utils.control_utils import init_keyboard_listener
+
+    return init_keyboard_listener()[1]
+
+
+def main(argv: list[str] | None = None) -> int:
+    import draccus
+    from lerobot.robots.utils import make_robot_from_config
+
+    config = draccus.parse(RolloutConfig, args=argv)
+    result = rollout(make_robot_from_config(config.robot), config)
+    print(f"{result['successes']}/{result['episodes']} successes, 95% CI {result['ci95']}; {config.out}/results.json")
+    return 0
