@@ -1,7 +1,9 @@
 """Point-cloud preprocessing per frame at 128×128: unproject -> crop -> voxel 5 mm -> FPS 2048 -> kNN 16.
 
 The plugin's batched pipeline (ObservationAdapter + geometry FPS/kNN) against a straightforward per-sample
-NumPy implementation of the same steps, on the same ray-cast cluttered frames, side by side in one run.
+NumPy implementation of the same steps, on the same ray-cast cluttered frames, side by side in one run; and FPS
+alone on the unvoxelized clouds, the device's path (fpsample on CPU, the Triton kernel on CUDA) against the
+batched tensor loop.
 
     .venv/bin/python -m benchmarks.bench_preprocess [--batch 32] [--device cpu] [--out FILE]
 """
@@ -95,6 +97,38 @@ def plugin_pipeline(adapter: ObservationAdapter, batch: dict, n_seeds: int = 204
     return seeds, neighbours, cloud.mask.sum(1)
 
 
+def fps_paths(batch: dict, n_seeds: int = 2048) -> dict:
+    """FPS alone, 2,048 seeds from each frame's whole cloud, table included and not voxelized (~16k points): the
+    device's own path against the batched tensor loop (the path of devices without one), side by side, and the
+    coverage radius of each sample."""
+    with_table = (*WORKSPACE[:4], -0.05, WORKSPACE[5])
+    raw = ObservationAdapter("pointcloud", [CAM], workspace=with_table, voxel_size=1e-4).eval()
+    with torch.no_grad():
+        cloud = raw.to(batch[f"observation.depth.{CAM}"].device)(batch)
+    dedicated = {"cpu": ("fpsample", geometry._fps_fpsample), "cuda": ("triton_kernel", geometry._fps_cuda)}
+    name, fast = dedicated[cloud.xyz.device.type]
+    out = {"points_per_frame_mean": round(float(cloud.mask.sum(1).float().mean()), 1)}
+    seeds = {}
+    for label, fps in (("tensor_loop", geometry._fps_torch), (name, fast)):
+
+        def run(fps=fps, label=label):
+            seeds[label] = fps(cloud.xyz, cloud.mask, n_seeds)
+            if cloud.xyz.device.type == "cuda":
+                torch.cuda.synchronize()
+
+        out[f"{label}_ms"] = timed(run, repeats=3)["median_ms"]
+    out["speedup"] = round(out["tensor_loop_ms"] / out[f"{name}_ms"], 1)
+    # depth in whole millimetres makes many distances tie exactly, and paths break ties differently: compare the
+    # samples' quality (the farthest any point lies from its nearest seed, mean over frames) rather than indices
+    for label, idx in seeds.items():
+        radius = [
+            torch.cdist(cloud.xyz[b][cloud.mask[b]], cloud.xyz[b][idx[b]]).amin(dim=1).max() for b in range(len(idx))
+        ]
+        out[f"{label}_coverage_mm"] = round(float(torch.stack(radius).mean()) * 1000, 2)
+    print(f"FPS {n_seeds} seeds, batch {len(cloud.xyz)}: {out}")
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--batch", type=int, default=32)
@@ -127,6 +161,7 @@ def main() -> None:
             )
 
     reference = timed(run_reference, repeats=2, warmup=0)
+    fps = fps_paths(batch)
 
     def run_libraries():
         for i in range(args.batch):
@@ -153,6 +188,7 @@ def main() -> None:
         "reference_frames": reference,
         "numpy_fpsample_scipy_ms_per_frame": round(libraries_ms, 3),
         "speedup_vs_numpy_fpsample_scipy": round(libraries_ms / plugin_ms, 2),
+        "fps_2048_per_batch": fps,
     }
     print(
         f"{args.size}² frames, ~{result['points_after_voxel_mean']:.0f} voxels each: plugin {plugin_ms:.2f} ms/frame "
