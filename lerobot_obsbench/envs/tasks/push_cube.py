@@ -1,4 +1,4 @@
-"""PushCube-v1.
+"""PushCube-v1 and its variant PushCubeWide-v1.
 
 **Task Description:** push the blue cube into the red/white target region in front of it (+x).
 
