@@ -16,7 +16,7 @@
    to an existing data file still concatenates data frames, which pandas cannot do with those columns either:
    callers give each source its own data file.)
 
-Both replace LeRobot functions for every process that imports the plugin (LeRobot's plugin discovery imports it
+Fixes 1 and 2 replace LeRobot functions for every process that imports the plugin (LeRobot's plugin discovery imports it
 into every `lerobot-*` command), so `apply()` patches only the LeRobot version they were written and tested
 for (`LEROBOT_VERSION`); on any other it warns and leaves LeRobot as it is.
 
