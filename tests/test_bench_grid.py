@@ -46,7 +46,12 @@ def test_presets_expand_and_validate():
     # an evaluation-only grid names runs of the training grid: the same training identities
     assert {r.run_id for r in sizes["paper-generalization"]} <= {r.run_id for r in sizes["paper-main"]}
     quick = sizes["quick"]
-    assert {"rgb", "rgbd", "pointcloud"} <= {r.obs_space for r in quick}
+    assert {"none", "rgb", "pointcloud"} <= {r.obs_space for r in quick}  # the blind control and two spaces
+    assert {s.perturbation for r in quick for s in load_grid("quick").evaluations(r)} == {
+        "none",
+        "camera_yaw:10",
+        "camera_pitch:10",
+    }
 
 
 def test_variants_are_an_axis_and_a_column_label():
