@@ -45,6 +45,7 @@ bench: $(STAMP)
 	$(BIN)/python -m benchmarks.bench_train_step
 	$(BIN)/python -m benchmarks.bench_env
 	$(BIN)/python -m benchmarks.bench_encoders
+	$(BIN)/python -m benchmarks.bench_recording
 
 clean:
 	rm -rf outputs .pytest_cache
