@@ -215,3 +215,31 @@ def test_ray_engine_gives_the_local_records_and_resumes_after_the_driver_is_kill
     log = finish("run", str(grid), "--out", str(ray), "--engine", "ray", "--threads", "1")
     assert f"{len(done)} already trained" in log
     assert comparable(quiet(ray / "results.jsonl")) == comparable(quiet(local / "results.jsonl"))
+
+
+def test_best_checkpoint_is_chosen_on_the_validation_seeds(tmp_path):
+    """Every saved checkpoint is scored on the validation seeds (10000+); the test seeds then evaluate the last
+    checkpoint and the best one (ties: the later); when they are the same checkpoint the record is copied."""
+    grid = tmp_path / "select.yaml"
+    grid.write_text(
+        GRID.replace("obs_spaces: [rgb, pointcloud]", "obs_spaces: [rgb]")
+        .replace("policies: [obs_act, obs_diffusion]", "policies: [obs_act]")
+        .replace("steps: 3", "steps: 4\ncheckpoints: 2\nvalidation_episodes: 2")
+        .replace("perturbations: [light:0.05]\n", "")
+    )
+    out = tmp_path / "out"
+    finish("run", str(grid), "--out", str(out))
+    evals = by_kind(quiet(out / "results.jsonl"), "eval")
+    validation = [r for r in evals if r["split"] == "validation"]
+    assert sorted(r["checkpoint_step"] for r in validation) == [2, 4]
+    assert all(r["per_seed"]["seeds"] == [10000, 10001] for r in validation)
+    best_step = max((r["success_rate"], r["checkpoint_step"]) for r in validation)[1]
+    tests = {r["checkpoint"]: r for r in evals if r["split"] == "test"}
+    assert set(tests) == {"last", "best"}
+    assert tests["last"]["checkpoint_step"] == 4 and tests["best"]["checkpoint_step"] == best_step
+    assert tests["last"]["per_seed"]["seeds"] == [0, 1]
+    if best_step == 4:
+        assert tests["best"]["copied_from"] == tests["last"]["eval_id"]
+        assert tests["best"]["per_seed"] == tests["last"]["per_seed"]
+    else:
+        assert "copied_from" not in tests["best"]
