@@ -1,7 +1,8 @@
-"""`obsbench` command line: inspect encoders, check datasets against observation spaces, print presets.
+"""`obsbench` command line: what LeRobot has no command for.
 
-Training and evaluation use stock LeRobot (`lerobot-train --policy.type=obs_act ...`); this tool covers what
-LeRobot has no command for.
+Simulation (doctor, demos, import-h5, eval), the benchmark (run, report, convert-results), datasets and
+configs (validate, encoders, preset, view) and real robots (find-cameras, calibrate-cameras, record, rollout).
+Training and stock evaluation stay with LeRobot (`lerobot-train --policy.type=obs_act ...`, `lerobot-eval`).
 """
 
 from __future__ import annotations
