@@ -47,4 +47,4 @@ def test_wheel_finds_the_preset_grids(tmp_path):
     )
     assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-3000:]
     assert run.stdout.splitlines()[0].startswith(str(tmp_path / "site"))
-    assert "grid quick:" in run.stdout and "to run" in run.stdout
+    assert "grid quick:" in run.stdout and "to train" in run.stdout
