@@ -166,13 +166,21 @@ def test_more_evaluations_train_nothing(finished_grid):
     assert {r["perturbation"] for r in new} == {"none", "light:0.05", "camera_yaw:10"}
 
 
+def one_run_grid(path: Path, *changes: tuple[str, str]) -> Path:
+    """GRID narrowed to one run (obs_act on rgb), with `changes` (old, new) applied to its text."""
+    text = GRID.replace("obs_spaces: [rgb, pointcloud]", "obs_spaces: [rgb]").replace(
+        "policies: [obs_act, obs_diffusion]", "policies: [obs_act]"
+    )
+    for old, new in changes:
+        assert old in text, old
+        text = text.replace(old, new)
+    path.write_text(text)
+    return path
+
+
 def test_killed_training_resumes_from_its_checkpoint_and_evaluation_keeps_it(tmp_path):
-    grid = tmp_path / "one.yaml"
-    grid.write_text(
-        GRID.replace("obs_spaces: [rgb, pointcloud]", "obs_spaces: [rgb]")
-        .replace("policies: [obs_act, obs_diffusion]", "policies: [obs_act]")
-        .replace("steps: 3", "steps: 200\ncheckpoints: 10")
-        .replace("eval_episodes: 2", "eval_episodes: 10")
+    grid = one_run_grid(
+        tmp_path / "one.yaml", ("steps: 3", "steps: 200\ncheckpoints: 10"), ("eval_episodes: 2", "eval_episodes: 10")
     )
     out = tmp_path / "out"
     (run,) = load_grid(grid).expand()
@@ -220,12 +228,10 @@ def test_ray_engine_gives_the_local_records_and_resumes_after_the_driver_is_kill
 def test_best_checkpoint_is_chosen_on_the_validation_seeds(tmp_path):
     """Every saved checkpoint is scored on the validation seeds (10000+); the test seeds then evaluate the last
     checkpoint and the best one (ties: the later); when they are the same checkpoint the record is copied."""
-    grid = tmp_path / "select.yaml"
-    grid.write_text(
-        GRID.replace("obs_spaces: [rgb, pointcloud]", "obs_spaces: [rgb]")
-        .replace("policies: [obs_act, obs_diffusion]", "policies: [obs_act]")
-        .replace("steps: 3", "steps: 4\ncheckpoints: 2\nvalidation_episodes: 2")
-        .replace("perturbations: [light:0.05]\n", "")
+    grid = one_run_grid(
+        tmp_path / "select.yaml",
+        ("steps: 3", "steps: 4\ncheckpoints: 2\nvalidation_episodes: 2"),
+        ("perturbations: [light:0.05]\n", ""),
     )
     out = tmp_path / "out"
     finish("run", str(grid), "--out", str(out))
