@@ -34,14 +34,16 @@ RESULTS_FILE = "results.jsonl"
 DEMO_FRAMES_PER_EPISODE = 30  # for estimates before the demonstrations exist
 
 # Rough throughput for `--dry-run` estimates and the grid's ETA until a run reports its own rate: training samples
-# per second by (device kind, preset) and space kind. From measured model steps (forward, backward, optimizer;
-# data loading not counted): cpu on this 2-core machine (benchmarks/results/train_step_cpu_cpu.json); cuda paper
+# per second by (device kind, preset) and space kind. cpu / cpu: whole `lerobot-train` runs of the quick grid on
+# this 2-core machine (64² images, data loading included: none 167, rgb 79, pointcloud 51 samples/s). Otherwise
+# from measured model steps (forward, backward, optimizer; data loading not counted): the other cpu presets on
+# this machine (benchmarks/results/train_step_cpu_cpu.json); cuda paper
 # on one H200 (benchmarks/results/train_step_cuda_paper.json: the ACT rates at batch 16, slower than DP's at 64;
 # point = PointNet and SpUNet-34 averaged). Not measured on a GPU: the smaller presets and the blind space, given
 # the paper's image rate (an upper bound on their time).
 TRAIN_SAMPLES_PER_SECOND = {
     ("cpu", "tiny"): {"image": 100.0, "point": 100.0, "none": 200.0},
-    ("cpu", "cpu"): {"image": 60.0, "point": 45.0, "none": 150.0},
+    ("cpu", "cpu"): {"image": 80.0, "point": 50.0, "none": 165.0},
     ("cpu", "paper"): {"image": 2.5, "point": 0.5, "none": 50.0},
     ("cuda", "tiny"): {"image": 270.0, "point": 270.0, "none": 270.0},
     ("cuda", "cpu"): {"image": 270.0, "point": 270.0, "none": 270.0},
@@ -64,7 +66,8 @@ def space_kind(obs_space: str) -> str:
 
 def train_seconds(run: RunSpec, steps: int, device: str) -> float:
     rate = TRAIN_SAMPLES_PER_SECOND[(device_kind(device), run.preset)][space_kind(run.obs_space)]
-    return steps * run.batch_size / rate * max(run.image_size / 128, 0.5) ** 2 + 20
+    # larger images cost more; smaller ones barely less (loading and the fixed per-step work dominate)
+    return steps * run.batch_size / rate * max(run.image_size / 128, 1.0) ** 2 + 20
 
 
 def eval_seconds(spec: EvalSpec, device: str) -> float:
