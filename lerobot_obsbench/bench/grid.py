@@ -26,19 +26,17 @@ import itertools
 import json
 import math
 from dataclasses import asdict, dataclass, field
-from importlib import resources
 from pathlib import Path
 
 import yaml
 
+from lerobot_obsbench.bench.package_data import path_or_shipped, shipped
 from lerobot_obsbench.envs.maniskill import DEFAULT_CONTROL_MODE
 from lerobot_obsbench.envs.perturbations import parse_perturbation
 from lerobot_obsbench.envs.task import TASKS, task_spec
 from lerobot_obsbench.presets import PRESETS, preset_encoder, preset_overrides
 from lerobot_obsbench.schema import BLIND_SPACES, OBS_SPACES, POLICY_TYPES
 
-# Preset grids ship inside the package (package data), so `obsbench run quick` works from any install.
-PRESET_GRIDS = resources.files("lerobot_obsbench.bench") / "grids"
 BUDGET_UNITS = {
     "steps": "optimizer steps",
     "samples": "training samples (optimizer steps x batch size)",
@@ -399,17 +397,15 @@ def check_policy_configs(grid: Grid, name: str) -> None:
 
 
 def preset_grids() -> list[str]:
-    return sorted(p.name.removesuffix(".yaml") for p in PRESET_GRIDS.iterdir() if p.name.endswith(".yaml"))
+    """Preset grids ship inside the package (package data), so `obsbench run quick` works from any install."""
+    return shipped("grids", ".yaml")
 
 
 def resolve_grid_path(path_or_preset: str | Path):
     """A grid file's path, or the packaged preset grid of that name."""
-    path = Path(path_or_preset)
-    if path.is_file():
-        return path
-    preset = PRESET_GRIDS / f"{path_or_preset}.yaml"
-    if preset.is_file():
-        return preset
+    found = path_or_shipped(path_or_preset, "grids", ".yaml")
+    if found is not None:
+        return found
     raise GridError(f"no grid file {str(path_or_preset)!r}; give a YAML path or a preset: {', '.join(preset_grids())}")
 
 

@@ -24,9 +24,9 @@ import json
 import math
 from collections import defaultdict
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 
+from lerobot_obsbench.bench.package_data import path_or_shipped, shipped
 from lerobot_obsbench.envs.perturbations import NOMINAL_VALUE, parse_perturbation
 from lerobot_obsbench.schema import BLIND_SPACES
 from lerobot_obsbench.stats import wilson_interval
@@ -75,22 +75,16 @@ def summarize(table: dict[str, dict[str, float]]) -> dict[str, dict]:
     }
 
 
-# The paper's tables, typed from its LaTeX source, ship with the package (`--table NAME`).
-PUBLISHED_TABLES = resources.files("lerobot_obsbench.bench") / "tables"
-
-
 def published_tables() -> list[str]:
-    return sorted(p.name.removesuffix(".csv") for p in PUBLISHED_TABLES.iterdir() if p.name.endswith(".csv"))
+    """The paper's tables, typed from its LaTeX source, shipped with the package (`--table NAME`)."""
+    return shipped("tables", ".csv")
 
 
 def resolve_table(name_or_path: str | Path):
     """A CSV path, or the packaged paper table of that name."""
-    path = Path(name_or_path)
-    if path.is_file():
-        return path
-    packaged = PUBLISHED_TABLES / f"{name_or_path}.csv"
-    if packaged.is_file():
-        return packaged
+    found = path_or_shipped(name_or_path, "tables", ".csv")
+    if found is not None:
+        return found
     raise ReportError(f"no table {str(name_or_path)!r}: give a CSV path or one of {', '.join(published_tables())}")
 
 
