@@ -338,7 +338,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--obs-space", choices=OBS_SPACES, help="only encoders accepting this space")
     p.set_defaults(func=cmd_encoders)
 
-    p = sub.add_parser("validate", help="check a LeRobotDataset against observation spaces (schema of DESIGN §3)")
+    p = sub.add_parser("validate", help="check a LeRobotDataset against observation spaces (README: Dataset schema)")
     p.add_argument("--root", required=True, help="dataset directory")
     p.add_argument("--repo-id", default="local/dataset")
     p.add_argument("--obs-space", default="all", choices=("all", *OBS_SPACES))
