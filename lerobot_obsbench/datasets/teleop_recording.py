@@ -173,7 +173,7 @@ def record(robot, teleop, config: RecordingConfig, events: dict | None = None) -
         timings = json.loads((staging / "timings.json").read_text()) if (staging / "timings.json").is_file() else []
         index = len(done)
         while index < config.num_episodes and not events["stop_recording"]:
-            if index > len(done) or index > 0:
+            if index > 0:  # a reset before every episode but the dataset's first
                 print(f"reset the scene ({config.reset_time_s:.0f} s, right arrow to skip)")
                 control_loop(robot, teleop, config.reset_time_s, config.fps, events)
             print(f"recording episode {index + 1}/{config.num_episodes}")
