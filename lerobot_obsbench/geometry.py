@@ -49,6 +49,18 @@ def invert_transform(transform: Tensor) -> Tensor:
     return out
 
 
+def rigidity_error(transform: Tensor) -> Tensor:
+    """How far each (..., 4, 4) transform is from rigid: the largest of |R R^T - I|, |det R - 1| and the last
+    row's deviation from (0, 0, 0, 1), per transform (...)."""
+    rotation = transform[..., :3, :3]
+    eye = torch.eye(3, dtype=transform.dtype, device=transform.device)
+    orthonormal = (rotation @ rotation.transpose(-1, -2) - eye).abs().flatten(-2).amax(-1)
+    determinant = (torch.linalg.det(rotation) - 1).abs()
+    bottom = transform.new_tensor([0.0, 0.0, 0.0, 1.0])
+    last_row = (transform[..., 3, :] - bottom).abs().amax(-1)
+    return torch.stack([orthonormal, determinant, last_row], -1).amax(-1)
+
+
 def quaternion_to_matrix(quat: Tensor) -> Tensor:
     """Rotation matrices (B, 3, 3) of quaternions (B, 4) in (w, x, y, z) order (normalised first)."""
     w, x, y, z = torch.unbind(quat / quat.norm(dim=-1, keepdim=True), dim=-1)

@@ -11,6 +11,10 @@
                   `workspace_jitter` per bound, as the official real-robot code), moved to the chosen frame, one point
                   per voxel (random in training; with `point_pipeline="official"` also in evaluation, and
                   points shuffled in training); features are rgb in [-1, 1] and/or xyz in metres.
+                  A frame with no valid point inside the box (a depth dropout, a hand over the camera) becomes
+                  the empty-cloud point: one point at the box centre with colour 0, so training and rollouts
+                  go on; such frames are counted and logged, and training stops when more than half of its
+                  first 64+ frames are empty (bad units or extrinsics, not dropouts).
     none       -> (B, 0): the blind control sees nothing (the batch size comes from observation.state).
 
 The same module runs on dataset batches in training and on env observations in evaluation, so an observation
@@ -18,6 +22,8 @@ space is never baked into stored data.
 """
 
 from __future__ import annotations
+
+import logging
 
 import torch
 from torch import Tensor, nn
@@ -43,6 +49,13 @@ from lerobot_obsbench.schema import (
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 DEFAULT_WORKSPACE = (-1.0, 1.0, -1.0, 1.0, 0.005, 1.0)
+# cam2world must be rigid: |R R^T - I|, |det R - 1| and the last row's deviation from 0 0 0 1 below this.
+RIGID_TOLERANCE = 1e-3
+# Training stops when more than this fraction of its frames had an empty cloud, once it has seen this many.
+MAX_EMPTY_FRACTION = 0.5
+EMPTY_CHECK_FRAMES = 64
+
+logger = logging.getLogger(__name__)
 
 
 def check_geometry(workspace, voxel_size: float, depth_clip) -> None:
@@ -85,6 +98,7 @@ class ObservationAdapter(nn.Module):
         if workspace_jitter < 0:
             raise ValueError(f"workspace_jitter must be >= 0 metres; got {workspace_jitter}")
         self.workspace_jitter = float(workspace_jitter)
+        self.frames_seen, self.frames_empty, self._next_warning = 0, 0, 1  # empty-cloud bookkeeping
         self.register_buffer("rgb_mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("rgb_std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
 
@@ -124,6 +138,13 @@ class ObservationAdapter(nn.Module):
             raise SchemaError(f"{k_key}: intrinsics must be finite with fx, fy > 0; fix the recorded camera K.")
         if not bool(torch.isfinite(cam2world).all()):
             raise SchemaError(f"{t_key}: camera pose contains non-finite values; fix the recorded extrinsics.")
+        error = geometry.rigidity_error(cam2world)
+        if float(error.max()) > RIGID_TOLERANCE:
+            raise SchemaError(
+                f"{t_key}: not a rigid transform (rotation not orthonormal with det +1, or last row not 0 0 0 1; "
+                f"largest deviation {float(error.max()):.3g}), so points would be scaled or sheared. Fix the "
+                "recorded extrinsics (`obsbench validate` finds the episodes)."
+            )
         return K, cam2world
 
     # ---- spaces ------------------------------------------------------------------------------------------
@@ -194,12 +215,10 @@ class ObservationAdapter(nn.Module):
             box = box + (torch.rand(len(xyz), 6, device=xyz.device, dtype=xyz.dtype) * 2 - 1) * self.workspace_jitter
         valid = geometry.crop_mask(xyz, valid, box)
         empty = ~valid.any(dim=1)
-        if bool(empty.any()):
-            raise SchemaError(
-                f"{', '.join(depth_key(c) for c in self.cameras)}: {int(empty.sum())} of {len(empty)} frames have no "
-                f"valid point inside the workspace {self.workspace} (all depth is 0 or outside the box). Check that "
-                "depth is in millimetres, that cam2world maps camera -> world, and --policy.workspace."
-            )
+        self._count_empty(int(empty.sum()), len(empty))
+        if bool(empty.any()):  # the empty-cloud point: one point at the box centre, colour 0 (module docstring)
+            centre = (box.reshape(-1, 3, 2).mean(-1)).expand(len(xyz), 3)
+            xyz[empty, 0], rgb[empty, 0], valid[empty, 0] = centre[empty], 0.0, True
         xyz, rgb, valid = geometry.pack(valid, xyz, rgb)
         to_frame = self._frame_transform(self.cameras[0], batch, ee_pose)
         if to_frame is not None:
@@ -213,6 +232,28 @@ class ObservationAdapter(nn.Module):
         else:
             feats = xyz if self.point_features == "xyz" else rgb
         return PointCloud(xyz=xyz * mask[..., None], features=feats * mask[..., None], mask=mask)
+
+    def _count_empty(self, empty: int, frames: int) -> None:
+        """Count frames with no point in the workspace: warn as they come, and stop a training whose data is
+        mostly such frames (a unit or extrinsics error, not a few dropouts) after its first batches."""
+        self.frames_seen += frames
+        self.frames_empty += empty
+        if not empty:
+            return
+        if self.frames_empty >= self._next_warning:
+            self._next_warning = 2 * self.frames_empty
+            logger.warning(
+                f"{self.frames_empty} of {self.frames_seen} frames so far had no valid point inside the workspace "
+                f"{self.workspace} (depth dropout, occlusion): each was given the empty-cloud point"
+            )
+        fraction = self.frames_empty / self.frames_seen
+        if self.training and self.frames_seen >= EMPTY_CHECK_FRAMES and fraction > MAX_EMPTY_FRACTION:
+            raise SchemaError(
+                f"{self.frames_empty} of the first {self.frames_seen} training frames have no valid point inside "
+                f"the workspace {self.workspace} in {', '.join(depth_key(c) for c in self.cameras)}: the data, not a "
+                "dropout. Check that depth is in millimetres, that cam2world maps camera -> world, and "
+                "--policy.workspace (`obsbench validate --root DATASET` scans every frame)."
+            )
 
 
 def _require(batch: dict, key: str) -> Tensor:

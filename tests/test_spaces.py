@@ -115,12 +115,52 @@ def test_bad_depth_dtype_and_shape(batch):
         adapter(_bad(batch, key, batch[key][..., 0]))
 
 
-def test_all_invalid_depth_frame_is_an_empty_cloud_error(batch):
+def test_an_all_invalid_depth_frame_becomes_the_empty_cloud_point(batch, caplog):
     key = f"observation.depth.{CAM}"
     depth = batch[key].clone()
     depth[1] = 0
-    with pytest.raises(SchemaError, match="1 of 3 frames have no valid point"):
-        ObservationAdapter("pointcloud", [CAM], workspace=WORKSPACE)(_bad(batch, key, depth))
+    adapter = ObservationAdapter("pointcloud", [CAM], workspace=WORKSPACE).eval()
+    cloud = adapter(_bad(batch, key, depth))
+    intact = adapter(batch)
+    # the empty frame: exactly one point, at the workspace box centre, colour 0 (xyz features = its position)
+    assert cloud.mask[1].sum() == 1 and cloud.mask[1, 0]
+    assert torch.allclose(cloud.xyz[1, 0], torch.tensor([0.0, 0.0, 0.2525]))
+    assert torch.equal(cloud.features[1, 0, :3], torch.zeros(3))
+    # the other frames are what they would be without it
+    for i in (0, 2):
+        n = int(intact.mask[i].sum())
+        assert int(cloud.mask[i].sum()) == n and torch.equal(cloud.xyz[i, :n], intact.xyz[i, :n])
+    assert (adapter.frames_empty, adapter.frames_seen) == (1, 6)
+    assert "1 of 3 frames so far had no valid point" in caplog.text
+
+
+def test_training_on_mostly_empty_frames_stops_after_its_first_batches(batch):
+    key = f"observation.depth.{CAM}"
+    depth = batch[key].clone()
+    depth[:2] = 0  # 2 of every 3 frames empty
+    adapter = ObservationAdapter("pointcloud", [CAM], workspace=WORKSPACE).train()
+    bad = _bad(batch, key, depth)
+    for _ in range(21):  # 63 frames: below the 64 frames the check waits for
+        adapter(bad)
+    with pytest.raises(SchemaError, match="44 of the first 66 training frames have no valid point"):
+        adapter(bad)
+    # evaluation never stops on it (a robot keeps acting; the frames are logged)
+    adapter.eval()
+    for _ in range(30):
+        adapter(bad)
+
+
+def test_non_rigid_cam2world_is_refused(batch):
+    key = f"observation.cam2world.{CAM}"
+    scaled = batch[key].clone()
+    scaled[1, :3, :3] *= 1.05
+    for space in ("pointcloud", "pointmap"):
+        with pytest.raises(SchemaError, match=r"not a rigid transform.*deviation 0\.158"):
+            ObservationAdapter(space, [CAM], workspace=WORKSPACE)(_bad(batch, key, scaled))
+    bottom = batch[key].clone()
+    bottom[0, 3, 0] = 0.5
+    with pytest.raises(SchemaError, match="not a rigid transform"):
+        ObservationAdapter("pointcloud", [CAM], workspace=WORKSPACE)(_bad(batch, key, bottom))
 
 
 def test_non_finite_intrinsics_and_missing_keys(batch):
