@@ -11,7 +11,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from lerobot_obsbench.schema import OBS_SPACES, POLICY_TYPES, SchemaError, validate_features
+from lerobot_obsbench import __version__
+from lerobot_obsbench.schema import OBS_SPACES, POLICY_TYPES, SchemaError
 
 
 def cmd_encoders(args: argparse.Namespace) -> int:
@@ -25,20 +26,11 @@ def cmd_encoders(args: argparse.Namespace) -> int:
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
-    from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+    from lerobot_obsbench.datasets.validation import validate_dataset
 
-    meta = LeRobotDatasetMetadata(args.repo_id, root=args.root)
-    spaces = OBS_SPACES if args.obs_space == "all" else (args.obs_space,)
-    failures = 0
-    for space in spaces:
-        try:
-            cams = validate_features(meta.features, space, args.cameras or None)
-            print(f"ok      {space:10s} cameras: {', '.join(cams)}")
-        except SchemaError as err:
-            failures += 1
-            print(f"FAILED  {space:10s} {err}")
-    print(f"{meta.total_episodes} episodes, {meta.total_frames} frames at {meta.fps} fps in {args.root}")
-    return 1 if failures == len(spaces) or (args.obs_space != "all" and failures) else 0
+    if not (Path(args.root) / "meta" / "info.json").is_file():
+        raise FileNotFoundError(f"{args.root} is not a LeRobot dataset (no meta/info.json)")
+    return validate_dataset(args.root, args.repo_id, args.obs_space, args.cameras or None, quick=args.quick)
 
 
 def cmd_preset(args: argparse.Namespace) -> int:
@@ -102,6 +94,7 @@ def cmd_import(args: argparse.Namespace) -> int:
         cameras=args.cameras,
         max_episodes=args.max_episodes,
         only_success=not args.all,
+        asset_dir=args.asset_dir,
     )
     print(f"{args.out}: {len(info['episode_ids'])} {info['task']} episodes imported from {args.h5}")
     return 0
@@ -164,6 +157,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     import json
 
     from lerobot_obsbench.bench.report import (
+        ReportError,
         build_report,
         markdown_table,
         read_published,
@@ -175,6 +169,8 @@ def cmd_report(args: argparse.Namespace) -> int:
 
     if args.results is None and args.table is None:
         raise SystemExit("obsbench report: give a results file (results.jsonl) and/or --table FILE.csv")
+    if args.results is not None and not args.results.is_file():
+        raise ReportError(f"results file {args.results} not found (`obsbench run` writes OUT/results.jsonl)")
     records = read_results(args.results) if args.results else []
     if args.results and not records:
         print(f"warning: no readable records in {args.results}", file=sys.stderr)
@@ -319,6 +315,17 @@ def cmd_view(args: argparse.Namespace) -> int:
     return 0
 
 
+def positive_int(text: str) -> int:
+    """argparse type: a whole number >= 1 (checked before anything starts)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     from lerobot_obsbench.bench.engines import ENGINES
     from lerobot_obsbench.bench.grid import preset_grids
@@ -330,6 +337,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="obsbench", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
+    parser.add_argument("--version", action="version", version=f"lerobot-obsbench {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     for name, (_, summary) in HARDWARE_COMMANDS.items():
         sub.add_parser(name, help=f"{summary} (LeRobot-style options: obsbench {name} --help)", add_help=False)
@@ -338,11 +346,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--obs-space", choices=OBS_SPACES, help="only encoders accepting this space")
     p.set_defaults(func=cmd_encoders)
 
-    p = sub.add_parser("validate", help="check a LeRobotDataset against observation spaces (README: Dataset schema)")
+    p = sub.add_parser(
+        "validate",
+        help="check that a LeRobotDataset serves each observation space: keys and shapes, then every frame's "
+        "depth, intrinsics and camera pose (README: Dataset schema); exit code 1 when an asked space fails",
+    )
     p.add_argument("--root", required=True, help="dataset directory")
     p.add_argument("--repo-id", default="local/dataset")
     p.add_argument("--obs-space", default="all", choices=("all", *OBS_SPACES))
     p.add_argument("--cameras", nargs="*", default=[], help="camera names (default: every camera found)")
+    p.add_argument(
+        "--quick", action="store_true", help="check the metadata only (default: also scan every frame's sensors)"
+    )
     p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser(
@@ -351,7 +366,7 @@ def build_parser() -> argparse.ArgumentParser:
         "(resumable: rerun the same command after an interruption)",
     )
     p.add_argument("--task", required=True)
-    p.add_argument("--episodes", type=int, required=True)
+    p.add_argument("--episodes", type=positive_int, required=True)
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--image-size", type=int, default=128)
     p.add_argument("--cameras", nargs="+", default=["base_camera"])
@@ -372,14 +387,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--image-size", type=int, default=128)
     p.add_argument("--cameras", nargs="+", default=["base_camera"])
-    p.add_argument("--max-episodes", type=int, default=None)
+    p.add_argument("--max-episodes", type=positive_int, default=None)
     p.add_argument("--all", action="store_true", help="also import unsuccessful episodes")
+    p.add_argument("--asset-dir", default=None, help="ManiSkill asset directory, for tasks with assets (TurnFaucet)")
     p.set_defaults(func=cmd_import)
 
     p = sub.add_parser("eval", help="success rate of a checkpoint on the task's fixed held-out seeds 0..N-1")
     p.add_argument("--policy.path", dest="policy_path", required=True, help="pretrained_model directory")
     p.add_argument("--env.task", dest="task", required=True)
-    p.add_argument("--episodes", type=int, default=50)
+    p.add_argument("--episodes", type=positive_int, default=50)
     p.add_argument(
         "--env.image_size",
         dest="image_size",
@@ -562,10 +578,14 @@ def main(argv: list[str] | None = None) -> int:
     from lerobot_obsbench.bench.report import ReportError
     from lerobot_obsbench.bench.results import ResultsFormatError
     from lerobot_obsbench.envs.task import TaskError
+    from lerobot_obsbench.locks import OutputLockedError
 
     try:
         return args.func(args)
-    except (GridError, ReportError, TaskError, SchemaError, ResultsFormatError) as err:
+    except (GridError, ReportError, TaskError, SchemaError, ResultsFormatError, OutputLockedError) as err:
+        print(f"obsbench {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except (PermissionError, FileNotFoundError, FileExistsError) as err:  # a path the user gave: one line
         print(f"obsbench {args.command}: error: {err}", file=sys.stderr)
         return 2
 

@@ -89,7 +89,7 @@ def quat_z(angle: float) -> np.ndarray:
     return np.array([np.cos(angle / 2), 0.0, 0.0, np.sin(angle / 2)])
 
 
-def features(size: int, camera: str, use_video: bool, with_goal: bool = True) -> dict:
+def features(size: int, camera: str, use_video: bool, with_goal: bool = True, depth_size: int | None = None) -> dict:
     feats = {
         f"observation.images.{camera}": {
             "dtype": "video" if use_video else "image",
@@ -98,7 +98,7 @@ def features(size: int, camera: str, use_video: bool, with_goal: bool = True) ->
         },
         f"observation.depth.{camera}": {
             "dtype": "uint16",
-            "shape": (size, size, 1),
+            "shape": (depth_size or size, depth_size or size, 1),
             "names": ["height", "width", "channels"],
         },
         f"observation.intrinsics.{camera}": {"dtype": "float32", "shape": (3, 3), "names": None},
@@ -137,9 +137,13 @@ def write_dataset(
     use_video: bool = True,
     with_goal: bool = True,
     repo_id: str = "local/obsbench_synthetic",
+    frame_hook=None,
+    depth_size: int | None = None,
 ) -> Path:
     """Write the dataset; `with_goal=False` leaves out the cube position (environment_state), so that a policy
-    can only find the cube in its observations."""
+        can only find the cube in its observations. `frame_hook(episode, index, frame)` may change a frame before it
+        is written (tests use it to plant bad sensor values); `depth_size` stores depth at another resolution than colour
+    (a recording error: depth not aligned to colour)."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     rng = np.random.default_rng(seed)
@@ -148,15 +152,17 @@ def write_dataset(
     ds = LeRobotDataset.create(
         repo_id=repo_id,
         fps=10,
-        features=features(size, camera, use_video, with_goal),
+        features=features(size, camera, use_video, with_goal, depth_size),
         root=out,
         robot_type="synthetic",
         use_videos=use_video,
     )
-    for _ in range(episodes):
-        for cube, ee, yaw, action in episode(rng, frames):
+    for episode_index in range(episodes):
+        for index, (cube, ee, yaw, action) in enumerate(episode(rng, frames)):
             boxes = [(cube, CUBE_HALF, CUBE_RGB), (ee, GRIPPER_HALF, GRIPPER_RGB)]
             rgb, depth, _ = render(K, cam2world, size, boxes)
+            if depth_size:
+                depth = depth[:: size // depth_size, :: size // depth_size][:depth_size, :depth_size]
             state = np.concatenate([rng.normal(0, 0.1, 7), [1.0], ee, quat_z(yaw)]).astype(np.float32)
             frame = {
                 f"observation.images.{camera}": rgb,
@@ -169,6 +175,8 @@ def write_dataset(
             }
             if with_goal:
                 frame["observation.environment_state"] = cube.astype(np.float32)
+            if frame_hook is not None:
+                frame = frame_hook(episode_index, index, frame)
             ds.add_frame(frame)
         ds.save_episode()
     ds.finalize()
