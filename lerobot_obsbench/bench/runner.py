@@ -29,6 +29,7 @@ from lerobot_obsbench.bench.units import (
     train_unit,
     training_progress,
 )
+from lerobot_obsbench.locks import exclusive_output
 
 RESULTS_FILE = "results.jsonl"
 DEMO_FRAMES_PER_EPISODE = 30  # for estimates before the demonstrations exist
@@ -420,18 +421,20 @@ def run_grid(
     the unit asks for). `loader_workers`: LeRobot's DataLoader workers per training run (0 is fastest on a
     2-core CPU, where a worker competes with training)."""
     out = Path(out)
-    work = load_work(grid, out, echo)
-    print_plan(grid, work, out, device, echo)
     if dry_run:
+        print_plan(grid, load_work(grid, out, echo), out, device, echo)
         return 0
     if threads is None and engine == "local":
         threads = max(1, (os.cpu_count() or 1) // max(workers, 1))
-    runner = Driver(grid, work, out, make_engine(engine, workers, address), device, loader_workers, threads, echo)
-    try:
-        runner.start()
-        if not runner.pending:
-            echo("nothing to do: every run is trained and every evaluation recorded")
-        runner.loop(progress_every)
-    finally:
-        runner.engine.shutdown()
+    with exclusive_output(out, f"obsbench run {grid.name}"):  # a second runner on `out` is refused
+        work = load_work(grid, out, echo)
+        print_plan(grid, work, out, device, echo)
+        runner = Driver(grid, work, out, make_engine(engine, workers, address), device, loader_workers, threads, echo)
+        try:
+            runner.start()
+            if not runner.pending:
+                echo("nothing to do: every run is trained and every evaluation recorded")
+            runner.loop(progress_every)
+        finally:
+            runner.engine.shutdown()
     return runner.failures

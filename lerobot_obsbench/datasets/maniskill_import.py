@@ -18,6 +18,7 @@ from tqdm import tqdm
 from lerobot_obsbench.datasets.recording import STAGING, assemble, save_episode_file
 from lerobot_obsbench.envs.maniskill import DEFAULT_CONTROL_MODE
 from lerobot_obsbench.envs.task import TaskError, task_spec
+from lerobot_obsbench.locks import exclusive_output
 from lerobot_obsbench.schema import ACTION_KEY
 
 
@@ -39,14 +40,9 @@ def import_trajectories(
     max_episodes: int | None = None,
     only_success: bool = True,
     repo_id: str | None = None,
+    asset_dir: str | None = None,
 ) -> dict:
-    import h5py
-    from mani_skill.trajectory.dataset import load_h5_data
-    from mani_skill.trajectory.utils import dict_to_list_of_dicts
-    from mani_skill.utils import common
-
-    from lerobot_obsbench.envs.maniskill import ObsBenchEnv
-
+    """Replay the trajectories of `h5_path` into a LeRobotDataset in `out` (resumable; one importer per `out`)."""
     h5_path, out = Path(h5_path), Path(out)
     meta = read_trajectory_metadata(h5_path)
     task = meta["env_info"]["env_id"]
@@ -59,9 +55,21 @@ def import_trajectories(
     episodes = episodes[:max_episodes] if max_episodes else episodes
     if not episodes:
         raise ValueError(f"{h5_path}: no{' successful' if only_success else ''} episodes to import.")
+    with exclusive_output(out, "obsbench import-h5"):
+        return _import_locked(h5_path, out, task, episodes, image_size, cameras, control_mode, repo_id, asset_dir)
+
+
+def _import_locked(h5_path, out, task, episodes, image_size, cameras, control_mode, repo_id, asset_dir) -> dict:
+    import h5py
+    from mani_skill.trajectory.dataset import load_h5_data
+    from mani_skill.trajectory.utils import dict_to_list_of_dicts
+    from mani_skill.utils import common
+
+    from lerobot_obsbench.envs.maniskill import ObsBenchEnv
+
     staging = out / STAGING
     staging.mkdir(parents=True, exist_ok=True)
-    env = ObsBenchEnv(task, cameras=cameras, image_size=image_size, control_mode=control_mode)
+    env = ObsBenchEnv(task, cameras=cameras, image_size=image_size, control_mode=control_mode, asset_dir=asset_dir)
     files = []
     with h5py.File(h5_path, "r") as f:
         for ep in tqdm(episodes, desc=f"import {task}", unit="ep"):

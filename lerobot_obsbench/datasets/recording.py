@@ -20,9 +20,12 @@ from tqdm import tqdm
 
 from lerobot_obsbench.envs.maniskill import CONTROL_FPS
 from lerobot_obsbench.envs.task import DEMO_SEED_START, task_spec
+from lerobot_obsbench.locks import exclusive_output
 from lerobot_obsbench.schema import ACTION_KEY, DEPTH_PREFIX, IMAGE_PREFIX, env_observation_to_frame
 
 STAGING = ".episodes"
+ATTEMPTS_LOG = "attempts.jsonl"
+TMP_SUFFIX = ".tmp.npz"  # an episode file being written; never read as an episode
 SIDECAR = "obsbench_demos.json"
 DATASET_ENTRIES = ("meta", "data", "videos", "images", ".assembling")
 
@@ -49,13 +52,26 @@ def rollout(env, spec, seed: int) -> tuple[bool, dict[str, np.ndarray]]:
 
 
 def _attempted(staging: Path) -> dict[int, bool]:
-    done = {int(p.stem.split("_")[1]): True for p in staging.glob("seed_*.npz")}
-    log = staging / "attempts.jsonl"
+    """Seeds already attempted (seed -> success), from the staged episode files and the attempts log.
+
+    A kill can leave a half-written `seed_N.tmp.npz` (deleted: that episode is simulated again) and a truncated
+    last log line (dropped, and the log rewritten so the next line starts clean: that attempt is redone).
+    """
+    for leftover in staging.glob(f"*{TMP_SUFFIX}"):
+        leftover.unlink()
+    done = {int(p.name.removeprefix("seed_").removesuffix(".npz")): True for p in staging.glob("seed_*.npz")}
+    log = staging / ATTEMPTS_LOG
     if log.is_file():
+        kept, dropped = [], 0
         for line in log.read_text().splitlines():
-            if line.strip():
+            try:
                 rec = json.loads(line)
                 done.setdefault(int(rec["seed"]), bool(rec["success"]))
+                kept.append(line)
+            except (ValueError, KeyError, TypeError):
+                dropped += 1  # blank or cut off by a kill mid-write
+        if dropped:
+            log.write_text("".join(f"{line}\n" for line in kept))
     return done
 
 
@@ -74,7 +90,7 @@ def _features(sample: dict[str, np.ndarray]) -> dict:
 
 def save_episode_file(path: Path, frames: dict[str, np.ndarray]) -> None:
     """Write one staged episode atomically (a kill leaves either the whole file or none)."""
-    tmp = path.with_name(path.stem + ".tmp.npz")
+    tmp = path.with_name(path.stem + TMP_SUFFIX)
     np.savez_compressed(tmp, **frames)
     os.replace(tmp, path)
 
@@ -114,15 +130,27 @@ def record_demos(
     repo_id: str | None = None,
     keep_staging: bool = False,
 ) -> dict:
-    """Record `episodes` successful expert demonstrations of `task` into `out` (resumable)."""
-    from lerobot_obsbench.envs.maniskill import ObsBenchEnv
-
+    """Record `episodes` successful expert demonstrations of `task` into `out` (resumable; one recorder per
+    `out`: a second one is refused with `OutputLockedError`)."""
     spec = task_spec(task)  # unknown task -> TaskError listing the valid ones
     if spec.expert is None:
         spec.make_expert(None)  # raises the explanatory NotImplementedError
     if seed_start < DEMO_SEED_START:
         raise ValueError(f"demonstration seeds must start at >= {DEMO_SEED_START} (below are evaluation seeds)")
-    out = Path(out)
+    if episodes < 1:
+        raise ValueError(f"--episodes must be >= 1; got {episodes}")
+    if image_size < 8:
+        raise ValueError(f"--image-size must be >= 8 pixels; got {image_size}")
+    with exclusive_output(out, "obsbench demos"):
+        return _record_locked(
+            spec, episodes, Path(out), image_size, cameras, seed_start, max_attempts, repo_id, keep_staging
+        )
+
+
+def _record_locked(spec, episodes, out, image_size, cameras, seed_start, max_attempts, repo_id, keep_staging) -> dict:
+    from lerobot_obsbench.envs.maniskill import ObsBenchEnv
+
+    task = spec.name
     sidecar = out / SIDECAR
     if sidecar.is_file() and (out / "meta" / "info.json").is_file():
         info = json.loads(sidecar.read_text())
@@ -154,7 +182,7 @@ def record_demos(
                 save_episode_file(staging / f"seed_{seed}.npz", frames)
                 successes.append(seed)
                 bar.update(1)
-            with open(staging / "attempts.jsonl", "a") as log:
+            with open(staging / ATTEMPTS_LOG, "a") as log:
                 log.write(json.dumps({"seed": seed, "success": ok, "steps": len(frames.get("action", []))}) + "\n")
             attempted[seed] = ok
             tried = len(attempted)

@@ -27,6 +27,7 @@ import numpy as np
 from lerobot.robots import RobotConfig
 from lerobot.teleoperators import TeleoperatorConfig
 
+from lerobot_obsbench.locks import exclusive_output
 from lerobot_obsbench.robots.checks import RobotSetupError, require_calibrated
 from lerobot_obsbench.robots.frames import action_values, dataset_features, motor_keys, observation_frame
 from lerobot_obsbench.schema import ACTION_KEY
@@ -145,7 +146,13 @@ def connect(robot, teleop) -> None:
 
 def record(robot, teleop, config: RecordingConfig, events: dict | None = None) -> dict:
     """Record `config.num_episodes` demonstrations (resuming), aggregate them into `config.root`; returns the
-    sidecar summary. `robot` and `teleop` are LeRobot devices, connected here."""
+    sidecar summary. `robot` and `teleop` are LeRobot devices, connected here. One recorder per root: a second
+    one is refused (`OutputLockedError`) before it touches the robot."""
+    with exclusive_output(config.root, "obsbench record"):
+        return _record_locked(robot, teleop, config, events)
+
+
+def _record_locked(robot, teleop, config: RecordingConfig, events: dict | None) -> dict:
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     root = Path(config.root)
