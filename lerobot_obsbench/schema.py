@@ -231,6 +231,51 @@ def camera_resolution(features: Mapping[str, object], obs_space: str, cameras: l
     return []
 
 
+# ---- policy <-> env (or robot) compatibility ---------------------------------------------------------------
+
+
+def compatibility_problems(
+    config,
+    cameras: list[str] | tuple[str, ...] | None,
+    resolution: tuple[int, int] | list[int] | None,
+    state_dim: int | None,
+    action_dim: int | None,
+) -> list[str]:
+    """What a policy `config` (the plugin's: `cameras`, `camera_resolution`, state and action features) needs and
+    an observation source does not give; one phrase per problem, each naming the flag that fixes it.
+
+    Every evaluation path (obsbench eval, stock lerobot-eval, real-robot rollouts) checks with this, so a
+    mismatch reads the same everywhere. A `None` argument is not checked."""
+    problems = []
+    wanted = list(getattr(config, "cameras", None) or [])
+    missing = [c for c in wanted if cameras is not None and c not in cameras]
+    if missing:
+        problems.append(f"the policy reads cameras {wanted} but the env renders {list(cameras)} (--env.cameras)")
+    trained = list(getattr(config, "camera_resolution", None) or [])
+    if trained and resolution is not None and list(resolution) != trained:
+        problems.append(
+            f"the policy was trained on {trained[0]}x{trained[1]} frames but the env renders "
+            f"{resolution[0]}x{resolution[1]} (--env.image_size={trained[0]})"
+        )
+    state = config.robot_state_feature
+    if state is not None and state_dim is not None and state.shape[0] != state_dim:
+        problems.append(f"the policy expects observation.state of size {state.shape[0]}, the env gives {state_dim}")
+    action = config.action_feature
+    if action is not None and action_dim is not None and action.shape[0] != action_dim:
+        problems.append(
+            f"the policy outputs {action.shape[0]}-D actions but the env's controller takes {action_dim} "
+            "(--env.control_mode)"
+        )
+    return problems
+
+
+def check_compatibility(config, cameras=None, resolution=None, state_dim=None, action_dim=None) -> None:
+    """Raise `SchemaError` listing every `compatibility_problems`."""
+    problems = compatibility_problems(config, cameras, resolution, state_dim, action_dim)
+    if problems:
+        raise SchemaError("Policy and env do not match: " + "; ".join(problems) + ".")
+
+
 # ---- the env <-> policy passthrough (DESIGN §10) ---------------------------------------------------------
 # Stock lerobot-eval's `preprocess_observation` keeps only `pixels`, `agent_pos`, `environment_state` and the
 # nested `robot_state` dict; the OBSBench env therefore sends depth, intrinsics and cam2world inside

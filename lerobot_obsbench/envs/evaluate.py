@@ -21,33 +21,13 @@ from tqdm import tqdm
 from lerobot_obsbench.envs.maniskill import CONTROL_FPS, DEFAULT_CONTROL_MODE, STATE_DIM, ObsBenchEnv
 from lerobot_obsbench.envs.task import eval_seeds, task_spec
 from lerobot_obsbench.policies.loading import load_policy
-from lerobot_obsbench.schema import SchemaError
+from lerobot_obsbench.schema import check_compatibility
 from lerobot_obsbench.stats import wilson_interval
 
 
 def check_compatible(config, env: ObsBenchEnv) -> None:
     """Refuse a policy whose cameras, image size, state or action do not match the env (clear message)."""
-    problems = []
-    missing = [c for c in getattr(config, "cameras", []) if c not in env.cameras]
-    if missing:
-        problems.append(f"the policy reads cameras {config.cameras} but the env renders {env.cameras} (--env.cameras)")
-    resolution = list(getattr(config, "camera_resolution", []) or [])
-    if resolution and resolution != [env.image_size, env.image_size]:
-        problems.append(
-            f"the policy was trained on {resolution[0]}x{resolution[1]} frames but the env renders "
-            f"{env.image_size}x{env.image_size} (--env.image_size={resolution[0]})"
-        )
-    state = config.robot_state_feature
-    if state is not None and state.shape[0] != STATE_DIM:
-        problems.append(f"the policy expects observation.state of size {state.shape[0]}, the env gives {STATE_DIM}")
-    action = config.action_feature
-    if action is not None and action.shape[0] != env.action_space.shape[0]:
-        problems.append(
-            f"the policy outputs {action.shape[0]}-D actions but the env's controller takes "
-            f"{env.action_space.shape[0]} (--env.control_mode)"
-        )
-    if problems:
-        raise SchemaError("Policy and env do not match: " + "; ".join(problems) + ".")
+    check_compatibility(config, env.cameras, (env.image_size, env.image_size), STATE_DIM, env.action_space.shape[0])
 
 
 def write_progress(path: Path, state: dict) -> None:
