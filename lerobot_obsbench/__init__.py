@@ -6,6 +6,8 @@ real-robot hardware types (`obsbench_realsense_rgbd`, `obsbench_koch_follower`, 
 data-loading fixes (see `lerobot_obsbench.patches`).
 """
 
+from importlib.metadata import version
+
 from lerobot_obsbench import patches
 
 patches.apply()
@@ -14,7 +16,7 @@ from lerobot_obsbench import encoders, envs, policies, robots  # noqa: E402  (re
 from lerobot_obsbench.encoders import available_encoders, make_encoder  # noqa: E402
 from lerobot_obsbench.spaces import ObservationAdapter  # noqa: E402
 
-__version__ = "0.1.0"
+__version__ = version("lerobot_policy_obsbench")  # one source: pyproject.toml (the distribution name)
 __all__ = [
     "ObservationAdapter",
     "available_encoders",

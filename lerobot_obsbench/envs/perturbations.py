@@ -17,11 +17,20 @@ A perturbation is written `kind:value` (grid files, `--env.perturbation`):
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
-KINDS = ("camera_yaw", "camera_pitch", "light", "background", "noise")
+# kind -> how it is written, with an example
+FORMS = {
+    "camera_yaw": "camera_yaw:DEG (e.g. camera_yaw:10)",
+    "camera_pitch": "camera_pitch:DEG (e.g. camera_pitch:10)",
+    "light": "light:I (e.g. light:0.03)",
+    "background": "background:R,G,B (e.g. background:1,0.2,0.2)",
+    "noise": "noise:SPP (e.g. noise:16)",
+}
+KINDS = tuple(FORMS)
 DEFAULT_AMBIENT = 0.3
 NOMINAL_VALUE = {"camera_yaw": 0.0, "camera_pitch": 0.0, "light": DEFAULT_AMBIENT, "noise": None, "background": None}
 
@@ -54,7 +63,9 @@ def parse_perturbation(text: str) -> Perturbation | None:
     try:
         value = tuple(float(v) for v in raw.split(","))
     except ValueError:
-        raise ValueError(f"perturbation {text!r}: the value must be numbers") from None
+        value = ()
+    if not value or not all(math.isfinite(v) for v in value):
+        raise ValueError(f"perturbation {text!r}: expected {FORMS[kind]}, with finite numbers")
     expected = 3 if kind == "background" else 1
     if len(value) != expected:
         raise ValueError(f"perturbation {text!r}: {kind} takes {expected} number(s)")

@@ -93,7 +93,8 @@ class Task:
             raise NotImplementedError(
                 f"No scripted expert for {self.name} yet (experts: "
                 f"{', '.join(n for n, t in TASKS.items() if t.expert)}). "
-                "Convert official ManiSkill demonstrations instead: obsbench import-h5 --h5 FILE.h5 --out DIR."
+                "Convert official ManiSkill demonstrations instead: obsbench import-h5 --h5 FILE.h5 --out DIR "
+                "(--asset-dir DIR for a task with downloaded assets)."
             )
         return self.expert(env)
 
@@ -138,6 +139,7 @@ def asset_help(spec: Task, asset_dir: str | None) -> str:
     return (
         f"{spec.name} needs ManiSkill assets '{spec.asset_group}', which are not in {where}/data. This machine "
         f"cannot download them; on one with internet run\n  MS_ASSET_DIR={where} python -m "
-        f"mani_skill.utils.download_asset {spec.asset_group}\nthen copy that directory here and pass "
-        f"--env.asset_dir={where} (or set MS_ASSET_DIR)."
+        f"mani_skill.utils.download_asset {spec.asset_group}\nthen copy that directory here and point the "
+        f"command at it: --env.asset_dir={where} (lerobot-train, lerobot-eval, obsbench eval), --asset-dir {where} "
+        "(obsbench doctor, obsbench import-h5), or MS_ASSET_DIR for any of them."
     )

@@ -7,7 +7,8 @@
 **Success Conditions:** the handle's joint beyond the target angle.
 
 **Expert:** none; the PartNet-Mobility assets cannot be downloaded on these machines. Record demonstrations
-with ManiSkill elsewhere and convert them with `obsbench import-h5`; point `--env.asset_dir` at the assets.
+with ManiSkill elsewhere and convert them with `obsbench import-h5 --h5 FILE.h5 --out DIR --asset-dir ASSETS`;
+evaluate with `--env.asset_dir=ASSETS`.
 """
 
 from __future__ import annotations
