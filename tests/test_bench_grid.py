@@ -100,6 +100,35 @@ def test_bad_grids_fail_with_the_valid_choices(change, words):
         assert word in str(err.value)
 
 
+@pytest.mark.parametrize(
+    "field, text, message",
+    [
+        ("steps", "-5", "steps must be a finite number > 0; got -5"),
+        ("steps", ".nan", "steps must be a finite number > 0; got nan"),
+        ("steps", "'x'", "steps must be a finite number > 0; got 'x'"),
+        ("image_size", "0", "image_size must be a whole number >= 16; got 0"),
+        ("image_size", "'64'", "image_size must be a whole number >= 16; got '64'"),
+        ("seeds", "a", "seeds must be a whole number >= 0; got 'a'"),
+        ("seeds", "[1000, 1.5]", "seeds[1] must be a whole number >= 0; got 1.5"),
+        ("demos", "[0]", "demos[0] must be a whole number >= 1; got 0"),
+        ("learning_rates", "[.inf]", "learning_rates[0] must be a finite number > 0; got inf"),
+        ("eval_episodes", "1.5", "eval_episodes must be a whole number >= 1; got 1.5"),
+        ("episode_length", "0", "episode_length must be a whole number >= 1; got 0"),
+        ("validation_episodes", "-1", "validation_episodes must be a whole number >= 0; got -1"),
+        ("batch_size", "true", "batch_size must be a whole number >= 1; got True"),
+        ("cameras", "base_camera", "cameras is a list of names"),
+    ],
+)
+def test_bad_grid_values_are_refused_by_the_dry_run(tmp_path, capsys, field, text, message):
+    """Each value is refused before anything runs: no demos, no output directory."""
+    lines = {"tasks": "[PushCube-v1]", "obs_spaces": "[rgb]", "steps": "5", field: text}
+    grid = tmp_path / "bad.yaml"
+    grid.write_text("".join(f"{key}: {value}\n" for key, value in lines.items()))
+    assert main(["run", str(grid), "--out", str(tmp_path / "out"), "--dry-run"]) == 2
+    assert f"obsbench run: error: bad: {message}" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
 def test_bad_grid_fails_before_anything_runs(tmp_path, capsys):
     grid = tmp_path / "bad.yaml"
     grid.write_text("tasks: [PushCube-v1]\nobs_spaces: [rgb]\nencoders: {rgb: [pointnet]}\nsteps: 5\n")

@@ -300,6 +300,62 @@ def _resolve_encoders(spec, spaces: list[str], preset: str) -> dict[str, list[st
     return resolved
 
 
+# Numeric grid fields: (whole number?, smallest allowed value, whether 0 itself is allowed); lists and per-policy
+# mappings are checked value by value. Booleans and strings are refused (YAML reads `steps: '5'` as a string).
+NUMERIC_FIELDS = {
+    "seeds": (True, 0, True),
+    "demos": (True, 1, True),
+    "learning_rates": (False, 0, False),
+    "steps": (False, 0, False),
+    "samples": (False, 0, False),
+    "demo_epochs": (False, 0, False),
+    "frame_epochs": (False, 0, False),
+    "batch_size": (True, 1, True),
+    "checkpoints": (True, 1, True),
+    "validation_episodes": (True, 0, True),
+    "image_size": (True, 16, True),
+    "eval_episodes": (True, 1, True),
+    "episode_length": (True, 1, True),
+}
+TEXT_LIST_FIELDS = ("cameras", "perturbations")
+
+
+def _check_number(value, label: str, whole: bool, minimum: float, inclusive: bool) -> None:
+    kind = "a whole number" if whole else "a finite number"
+    bound = f">= {minimum}" if inclusive else f"> {minimum}"
+    numeric = isinstance(value, (int, float)) and not isinstance(value, bool)
+    ok = numeric and math.isfinite(value) and (value >= minimum if inclusive else value > minimum)
+    if ok and whole and not isinstance(value, int):
+        ok = False
+    if not ok:
+        raise GridError(f"{label} must be {kind} {bound}; got {value!r}")
+
+
+def _check_values(values: dict, name: str) -> None:
+    """Type and range of every numeric and text field, before anything is built or run."""
+    for key, (whole, minimum, inclusive) in NUMERIC_FIELDS.items():
+        value = values.get(key)
+        if value is None:
+            continue
+        if isinstance(value, dict):  # per policy
+            items = [(f"{name}: {key} of {policy}", v) for policy, v in value.items()]
+        elif isinstance(value, (list, tuple)):
+            items = [(f"{name}: {key}[{i}]", v) for i, v in enumerate(value)]
+        else:
+            items = [(f"{name}: {key}", value)]
+        for label, item in items:
+            _check_number(item, label, whole, minimum, inclusive)
+    for key in TEXT_LIST_FIELDS:
+        value = values.get(key, [])
+        if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
+            raise GridError(f"{name}: {key} is a list of names, e.g. [base_camera]; got {value!r}")
+    for key in ("name", "description", "preset", "control_mode", "checkpoints_from"):
+        if key in values and values[key] is not None and not isinstance(values[key], str):
+            raise GridError(f"{name}: {key} is text; got {values[key]!r}")
+    if not isinstance(values.get("policy_overrides", {}), dict):
+        raise GridError(f"{name}: policy_overrides is a mapping of --policy.* fields to values")
+
+
 def parse_grid(data: dict, name: str = "grid") -> Grid:
     if not isinstance(data, dict):
         raise GridError(f"{name}: a grid file is a YAML mapping of fields; got {type(data).__name__}")
@@ -323,14 +379,15 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
     for key in PER_POLICY:
         if isinstance(values.get(key), dict):
             _choose(list(values[key]), list(policies), f"policies in {key}")
+    _check_values(values, name)
     grid = Grid(
         name=str(values["name"]),
         tasks=tasks,
         obs_spaces=spaces,
         policies=policies,
-        seeds=[int(s) for s in _as_list(values.get("seeds", [1000]), "seeds")],
+        seeds=_as_list(values.get("seeds", [1000]), "seeds"),
         learning_rates=[float(lr) for lr in _as_list(values.get("learning_rates", [1e-4]), "learning_rates")],
-        demos=[int(n) for n in _as_list(values.get("demos", [100]), "demos")],
+        demos=_as_list(values.get("demos", [100]), "demos"),
         preset=preset,
         encoders=_resolve_encoders(values.get("encoders"), spaces, preset),
         **{
@@ -341,17 +398,7 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
         },
     )
     for policy in policies:
-        unit, budget = grid.budget(policy)
-        if not budget > 0:
-            raise GridError(f"{name}: the {unit} budget of {policy} must be > 0; got {budget}")
-        for key in ("batch_size", "checkpoints"):
-            value = grid.per_policy(key, policy)
-            if not isinstance(value, int) or value < 1:
-                raise GridError(f"{name}: {key} of {policy} must be a whole number >= 1; got {value!r}")
-    if min(grid.demos) < 1 or grid.eval_episodes < 1 or grid.validation_episodes < 0:
-        raise GridError(f"{name}: demos and eval_episodes must be >= 1, validation_episodes >= 0")
-    if grid.episode_length is not None and grid.episode_length < 1:
-        raise GridError(f"{name}: episode_length must be >= 1 (or omitted: each task's own budget)")
+        grid.budget(policy)  # exactly one unit per policy
     for text in grid.perturbations:
         try:
             parse_perturbation(text)
