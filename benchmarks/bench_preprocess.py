@@ -60,8 +60,8 @@ def sensor_batch(frames: dict[str, np.ndarray], device) -> dict[str, torch.Tenso
 def numpy_reference(rgb, depth, K, cam2world, voxel=0.005, n_seeds=2048, k=16, libraries=False):
     """One frame, plain NumPy: returns seed xyz (S, 3), neighbour indices (S, k) and the voxel count.
 
-    `libraries=True` swaps the FPS loop and brute-force kNN for fpsample and scipy's KD-tree (DESIGN §11's
-    per-frame CPU anchor)."""
+    `libraries=True` swaps the FPS loop and brute-force kNN for fpsample and scipy's KD-tree (a per-frame
+    CPU anchor made of well-kept libraries)."""
     h, w = depth.shape[:2]
     z = depth[..., 0].astype(np.float64) / 1000.0
     v, u = np.mgrid[0:h, 0:w]

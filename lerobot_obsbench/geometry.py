@@ -2,7 +2,7 @@
 
 Every function is pure, batched over a leading dimension B, and runs on whatever device its inputs live on.
 Variable-size clouds are padded to a common length N with a boolean `mask` (B, N) marking real points.
-Conventions (DESIGN §3): depth is metres along the optical axis, K is OpenCV's (pixel (u, v) = (column, row),
+Conventions (the dataset schema): depth is metres along the optical axis, K is OpenCV's (pixel (u, v) = (column, row),
 integer coordinates at pixel centres), `cam2world` maps OpenCV camera coordinates (x right, y down,
 z forward) to the world frame, quaternions are (w, x, y, z).
 """

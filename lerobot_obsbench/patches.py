@@ -1,6 +1,6 @@
 """Narrow fixes to LeRobot 0.4.4's dataset loading, applied when the plugin is imported.
 
-1. Array columns through Python lists (DESIGN §10). LeRobot formats its `datasets.Dataset` with
+1. Array columns through Python lists. LeRobot formats its `datasets.Dataset` with
    `set_transform(hf_transform_to_torch)`: every read first turns the Arrow rows into Python lists, then
    `torch.tensor(list)`. A 128² depth frame is 16k nested Python ints: ~30 ms per row, and an ACT chunk query
    (`hf_dataset[key][indices]`) formats every column of its 100 rows, depth included: seconds per sample.

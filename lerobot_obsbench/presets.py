@@ -1,6 +1,6 @@
 """Named hyper-parameter presets, as `--policy.*` overrides for stock `lerobot-train`.
 
-- `paper`: the paper's protocol as its official code runs it (../shared/paper/official-protocol.md; the README's
+- `paper`: the paper's protocol as its official code runs it (the README's
   "Differences from the paper" lists what stays different and why): the config defaults' model sizes, plus
   ACT's MSE loss and raw-metre point positions, 224 px image inputs (49 ResNet tokens), zero-started extra stem
   channels, the official depth / xyz scaling and point-sampling details, Diffusion Policy's official point-cloud
@@ -35,7 +35,7 @@ PRESETS: dict[str, dict[tuple[str, str], dict[str, object]]] = {
         (ACT, "point"): {"position_scale": 1.0},
         (DP, "point"): {"dp_point_head": "official"},
     },
-    # The paper's real-robot set-up (ACT, lr 5e-5, ResNet-50 / PointNet, two RealSense cameras; DESIGN §12):
+    # The paper's real-robot set-up (ACT, lr 5e-5, ResNet-50 / PointNet, two RealSense cameras; README: Real robot):
     # crop boxes in the ChArUco board's world frame (z up), jittered by ±1 cm in training.
     "real-one-arm": {
         (ACT, "all"): {"chunk_size": 20, "optimizer_lr": 5e-5},

@@ -1,4 +1,4 @@
-"""The plugin's shared vocabulary: observation spaces and their inputs, the dataset schema (DESIGN §3), its
+"""The plugin's shared vocabulary: observation spaces and their inputs, the dataset schema, its
 validator, the point-cloud container, and the env <-> policy passthrough codec.
 
 Every other module takes these names from here; this module imports nothing of the plugin.
@@ -276,7 +276,7 @@ def check_compatibility(config, cameras=None, resolution=None, state_dim=None, a
         raise SchemaError("Policy and env do not match: " + "; ".join(problems) + ".")
 
 
-# ---- the env <-> policy passthrough (DESIGN §10) ---------------------------------------------------------
+# ---- the env <-> policy passthrough ----------------------------------------------------------------------
 # Stock lerobot-eval's `preprocess_observation` keeps only `pixels`, `agent_pos`, `environment_state` and the
 # nested `robot_state` dict; the OBSBench env therefore sends depth, intrinsics and cam2world inside
 # `robot_state` under their schema names without the "observation." prefix.

@@ -1,4 +1,4 @@
-"""ObservationAdapter: stored sensor tensors -> the inputs of one observation space (DESIGN §2, §4).
+"""ObservationAdapter: stored sensor tensors -> the inputs of one observation space.
 
     rgb        -> images (B, n_cam, 3, H, W)   ImageNet-normalised colour
     depth      -> images (B, n_cam, 1, H, W)   metric depth clipped to `depth_clip` and scaled to [-1, 1]

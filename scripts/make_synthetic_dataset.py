@@ -6,8 +6,8 @@ blue "gripper" box (3 cm) floating above it. Each episode moves the gripper towa
 proportional controller; the action is the (scaled) position error, so it depends on where the cube is.
 
 This file deliberately imports nothing from `lerobot_obsbench`: it plays the part of "someone else's code
-writing the schema" (DESIGN §3), and its ray-caster is the independent reference the geometry tests compare
-the plugin's unprojection against.
+writing the schema" (lerobot_obsbench/schema.py), and its ray-caster is the independent reference the geometry
+tests compare the plugin's unprojection against.
 
     python scripts/make_synthetic_dataset.py --out data/synthetic --episodes 20 --frames 20 --size 64
 """
@@ -141,9 +141,9 @@ def write_dataset(
     depth_size: int | None = None,
 ) -> Path:
     """Write the dataset; `with_goal=False` leaves out the cube position (environment_state), so that a policy
-        can only find the cube in its observations. `frame_hook(episode, index, frame)` may change a frame before it
-        is written (tests use it to plant bad sensor values); `depth_size` stores depth at another resolution than colour
-    (a recording error: depth not aligned to colour)."""
+    can only find the cube in its observations. `frame_hook(episode, index, frame)` may change a frame before it
+    is written (tests use it to plant bad sensor values); `depth_size` stores depth at another resolution than
+    colour (a recording error: depth not aligned to colour)."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     rng = np.random.default_rng(seed)

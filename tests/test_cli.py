@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import shutil
 
 import pytest
@@ -96,3 +97,60 @@ def test_wilson_interval_against_published_values():
     assert wilson_interval(81, 263) == pytest.approx((0.2553, 0.3662), abs=1e-4)
     with pytest.raises(ValueError):
         wilson_interval(3, 2)
+
+
+def test_small_probes_get_one_line_answers(tmp_path, capsys):
+    """The probes of the robustness issue that need no simulator: each answer is one line naming the fix."""
+    from lerobot_obsbench import __version__
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["--version"])
+    assert exit_.value.code == 0 and capsys.readouterr().out.strip() == f"lerobot-obsbench {__version__}"
+
+    with pytest.raises(SystemExit):
+        main(["demos", "--task", "PushCube-v1", "--episodes", "0", "--out", str(tmp_path / "d")])
+    assert "argument --episodes: must be >= 1, got 0" in capsys.readouterr().err
+    assert not (tmp_path / "d").exists()
+
+    missing = tmp_path / "run" / "pretrained_model"
+    assert main(["eval", "--policy.path", str(missing), "--env.task", "PushCube-v1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (
+        f"obsbench eval: error: policy checkpoint {missing} not found (a `pretrained_model` directory written by "
+        "lerobot-train, or a Hub repo id ORG/NAME)"
+    )
+
+    assert main(["report", str(tmp_path / "results.jsonl")]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"obsbench report: error: results file {tmp_path / 'results.jsonl'} not found (`obsbench run` writes "
+        "OUT/results.jsonl)"
+    )
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("light:nan", "expected light:I (e.g. light:0.03), with finite numbers"),
+        ("camera_yaw:ten", "expected camera_yaw:DEG (e.g. camera_yaw:10), with finite numbers"),
+        ("background:1,x,0", "expected background:R,G,B (e.g. background:1,0.2,0.2)"),
+    ],
+)
+def test_unparsable_perturbations_say_what_is_expected(text, message):
+    from lerobot_obsbench.envs.perturbations import parse_perturbation
+
+    with pytest.raises(ValueError, match=re.escape(message)):
+        parse_perturbation(text)
+
+
+def test_asset_hint_names_flags_that_exist():
+    from lerobot_obsbench.cli import build_parser
+    from lerobot_obsbench.envs.task import asset_help, task_spec
+
+    hint = asset_help(task_spec("TurnFaucet-v1"), "/data/ms")
+    assert "--asset-dir /data/ms (obsbench doctor, obsbench import-h5)" in hint
+    parser = build_parser()
+    for command in ("doctor", "import-h5"):
+        sub = parser._subparsers._group_actions[0].choices[command]
+        assert "--asset-dir" in sub._option_string_actions
+    eval_parser = parser._subparsers._group_actions[0].choices["eval"]
+    assert "--env.asset_dir" in eval_parser._option_string_actions

@@ -1,4 +1,4 @@
-"""The `paper` preset reproduces the official code's protocol (../shared/paper/official-protocol.md): one test per
+"""The `paper` preset reproduces the official code's protocol (README: Differences from the paper): one test per
 item that can be checked without a GPU. The plugin's own behaviour stays the default of every field."""
 
 from __future__ import annotations

@@ -149,7 +149,8 @@ def _demos(out: Path, episodes: int, *extra: str) -> subprocess.Popen:
 
 @pytest.fixture(scope="module")
 def demos(tmp_path_factory) -> Path:
-    """PickCube demos recorded with a kill in the middle and a rerun."""
+    """PickCube demos recorded with a second recorder started on the same --out (refused), then a kill, the
+    leftovers a kill in the middle of writing leaves (a partial episode file, a cut log line), and a rerun."""
     out = tmp_path_factory.mktemp("demos") / "pickcube"
     proc = _demos(out, 5)
     staging = out / ".episodes"
@@ -157,18 +158,36 @@ def demos(tmp_path_factory) -> Path:
     while len(list(staging.glob("seed_*.npz"))) < 2 and time.time() < deadline and proc.poll() is None:
         time.sleep(0.2)
     assert proc.poll() is None, "recording finished before it could be interrupted"
+    proc.send_signal(signal.SIGSTOP)  # holds its lock while stopped: a second recorder must be refused
+    second = _demos(out, 5)
+    second_log, _ = second.communicate(timeout=300)
+    (out.parent / "second_recorder.log").write_text(f"exit {second.returncode}\n{second_log}")
     proc.send_signal(signal.SIGKILL)
     proc.wait()
-    kept = sorted(p.name for p in staging.glob("seed_*.npz"))
+    kept = sorted(staging.glob("seed_*.npz"))
     assert 2 <= len(kept) < 5
+    # what a kill during the next episode's write leaves: a partial file under the temporary name, and a log
+    # line cut off before its newline
+    next_seed = max(int(p.stem.removeprefix("seed_")) for p in kept) + 1
+    (staging / f"seed_{next_seed}.tmp.npz").write_bytes(kept[0].read_bytes()[:1000])
+    with open(staging / "attempts.jsonl", "a") as log:
+        log.write(f'{{"seed": {next_seed}, "succ')
     rerun = _demos(out, 5)
     log, _ = rerun.communicate(timeout=600)
     assert rerun.returncode == 0, log[-3000:]
     return out
 
 
+def test_a_second_recorder_on_the_same_output_is_refused(demos):
+    log = (demos.parent / "second_recorder.log").read_text()
+    assert log.startswith("exit 2"), log[-2000:]
+    assert f"{demos} is being written by obsbench demos (pid" in log and "choose another output directory" in log
+
+
 def test_demos_resume_to_exactly_n_episodes(demos):
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from lerobot_obsbench.cli import main
 
     info = json.loads((demos / "obsbench_demos.json").read_text())
     assert len(info["seeds"]) == len(set(info["seeds"])) == 5
@@ -187,6 +206,7 @@ def test_demos_resume_to_exactly_n_episodes(demos):
     assert sample["observation.depth.base_camera"].shape == (SIZE, SIZE, 1)
     assert sample["observation.state"].shape == (16,) and sample["action"].shape == (7,)
     assert schema.validate_features(ds.meta.features, "pointcloud") == ["base_camera"]
+    assert main(["validate", "--root", str(demos)]) == 0  # every frame's sensors, every space
 
 
 def test_recorded_table_is_at_world_z_zero(demos):
@@ -256,6 +276,41 @@ def test_end_to_end_demos_train_stock_lerobot_eval(checkpoint, tmp_path):
     assert evaluation.returncode == 0, evaluation.stderr[-3000:]
     out = evaluation.stdout + evaluation.stderr
     assert "'pc_success'" in out and "'n_episodes': 2" in out
+
+
+@pytest.mark.parametrize(
+    "flags, message",
+    [
+        ([], f"the policy was trained on {SIZE}x{SIZE} frames but the env renders 128x128 (--env.image_size={SIZE})"),
+        (
+            [f"--env.image_size={SIZE}", "--env.control_mode=pd_joint_pos"],
+            "the policy outputs 7-D actions but the env's controller takes 8 (--env.control_mode)",
+        ),
+    ],
+)
+def test_stock_lerobot_eval_refuses_a_mismatched_env(checkpoint, tmp_path, flags, message):
+    """The README's lerobot-eval line without the image size used to evaluate at 128x128 and report success."""
+    evaluation = subprocess.run(
+        [
+            str(BIN / "lerobot-eval"),
+            f"--policy.path={checkpoint}",
+            "--policy.device=cpu",
+            "--env.type=obsbench",
+            "--env.task=PickCube-v1",
+            *flags,
+            "--eval.n_episodes=1",
+            "--eval.batch_size=1",
+            f"--output_dir={tmp_path / 'eval'}",
+        ],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        stdin=subprocess.DEVNULL,
+        timeout=600,
+    )
+    assert evaluation.returncode != 0
+    assert "Policy and env do not match: " + message in evaluation.stderr
+    assert "pc_success" not in evaluation.stdout + evaluation.stderr
 
 
 def test_obsbench_eval_is_deterministic_and_complete(checkpoint, tmp_path):

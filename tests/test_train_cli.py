@@ -86,3 +86,48 @@ def test_lerobot_train_reports_a_space_the_dataset_cannot_serve(tmp_path, synthe
     proc = lerobot_train(tmp_path / "rgb_only", tmp_path / "run", "obs_act", "pointcloud")
     assert proc.returncode != 0
     assert "observation.depth.<cam>" in proc.stderr and "obs_space='pointcloud' needs" in proc.stderr
+
+
+def _zero_depth(frames):
+    """A frame hook blanking the depth of the listed (episode, frame) pairs: a RealSense dropout."""
+
+    def hook(episode, index, frame):
+        if (episode, index) in frames:
+            key = "observation.depth.base_camera"
+            frame = {**frame, key: frame[key] * 0}
+        return frame
+
+    return hook
+
+
+@pytest.mark.slow
+def test_training_goes_through_an_empty_depth_frame(tmp_path, synthetic_module):
+    # 3 episodes x 12 frames, one with no depth at all; batch 4 x 9 steps is one epoch: every frame is trained on
+    root = synthetic_module.write_dataset(
+        tmp_path / "dropout", episodes=3, frames=12, size=32, seed=5, use_video=False, frame_hook=_zero_depth({(1, 5)})
+    )
+    proc = lerobot_train(
+        root, tmp_path / "run", "obs_act", "pointcloud", "--batch_size=4", "--steps=9", "--save_freq=9"
+    )
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    assert "1 of " in proc.stderr and "had no valid point inside the workspace" in proc.stderr
+    assert (tmp_path / "run" / "checkpoints" / "last" / "pretrained_model" / "model.safetensors").is_file()
+
+
+@pytest.mark.slow
+def test_training_on_mostly_empty_frames_stops_early(tmp_path, synthetic_module):
+    empty = {(e, i) for e in range(3) for i in range(12) if e != 0}  # 2 of 3 episodes without depth
+    root = synthetic_module.write_dataset(
+        tmp_path / "blind_camera",
+        episodes=3,
+        frames=12,
+        size=32,
+        seed=6,
+        use_video=False,
+        frame_hook=_zero_depth(empty),
+    )
+    proc = lerobot_train(root, tmp_path / "run", "obs_act", "pointcloud", "--batch_size=4", "--steps=200")
+    assert proc.returncode != 0
+    assert "training frames have no valid point inside the workspace" in proc.stderr
+    assert "obsbench validate --root DATASET" in proc.stderr
+    assert "step:50" not in proc.stdout + proc.stderr  # stopped within its first batches, not hours in

@@ -1,4 +1,4 @@
-"""The paper's point tokenizer (DESIGN §4) around any per-point backbone (`pointnet`, `spunet34`).
+"""The paper's point tokenizer around any per-point backbone (`pointnet`, `spunet34`).
 
 A backbone is a module `(xyz (B, N, 3), features (B, N, C), mask (B, N)) -> (B, N, out_channels)` with an
 `out_channels` attribute. Tokens for ACT:

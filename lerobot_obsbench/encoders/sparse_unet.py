@@ -13,7 +13,7 @@ sampling; duplicates share a voxel) and the per-voxel output features are scatte
 
 Importing this module needs spconv. spconv 2.3.8's CPU wheel asks `torch.cuda.current_stream()` in its backward
 pass, which fails on a CUDA-built torch without a GPU; `import_spconv` makes that lookup return stream 0 when
-CUDA is unavailable (DESIGN §5). On a GPU machine install `spconv-cu126` instead; the code is the same.
+CUDA is unavailable. On a GPU machine install `spconv-cu126` instead; the code is the same.
 """
 
 from __future__ import annotations

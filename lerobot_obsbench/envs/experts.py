@@ -1,7 +1,7 @@
 """The scripted experts' machinery, driving the `pd_ee_delta_pose` controller (each task's own expert lives in
 its task module, `lerobot_obsbench.envs.tasks`).
 
-ManiSkill's own motion-planning solutions need mplib, which cannot run next to LeRobot's numpy >= 2 (DESIGN §7),
+ManiSkill's own motion-planning solutions need mplib, which cannot run next to LeRobot's numpy >= 2,
 so demonstrations come from privileged (they read object poses from the simulator) waypoint followers: a
 proportional controller moves the tool-centre point (TCP) and its orientation towards the current waypoint; a
 phase ends when its waypoint is reached (or after a step budget), then the next begins.

@@ -190,7 +190,7 @@ class ObsBenchEnv(gym.Env):
     # ---- observation conversion --------------------------------------------------------------------------
 
     def schema_frame(self, obs: dict) -> dict[str, np.ndarray]:
-        """ManiSkill observation (batch of 1) -> dataset schema keys (DESIGN §3)."""
+        """ManiSkill observation (batch of 1) -> dataset schema keys (lerobot_obsbench/schema.py)."""
         frame = {}
         for cam in self.cameras:
             data, param = obs["sensor_data"][cam], obs["sensor_param"][cam]

@@ -1,5 +1,5 @@
-"""Robot observations and actions <-> the dataset schema (README / DESIGN §3): the keys real recordings write and
-real rollouts feed the policy, so every observation space works on real data as on simulated data.
+"""Robot observations and actions <-> the dataset schema (lerobot_obsbench/schema.py): the keys real recordings
+write and real rollouts feed the policy, so every observation space works on real data as on simulated data.
 
 | robot observation key     | schema key                         |
 |---------------------------|------------------------------------|

@@ -1,4 +1,4 @@
-"""Run a trained checkpoint on a real robot for N episodes, the operator judging each (DESIGN §12).
+"""Run a trained checkpoint on a real robot for N episodes, the operator judging each (README: Real robot).
 
 Per episode: the operator starts it, the policy acts at `fps` for at most `episode_time_s` (ACT checkpoints keep
 their temporal ensembling: one new chunk per step, averaged), the arm returns to its rest pose (the joint

@@ -1,4 +1,4 @@
-"""The paper's real-robot tasks (Appendix "Real-World Setups"; DESIGN §12) as presets for training and rollouts.
+"""The paper's real-robot tasks (its appendix "Real-World Setups") as presets for training and rollouts.
 
 `obsbench preset --preset real-one-arm|real-two-arms` prints the policy fields for stock `lerobot-train` (ACT at
 lr 5e-5, chunk 20 / 40, the crop box in the ChArUco world frame jittered by ±1 cm, ResNet-50 / PointNet);

@@ -19,7 +19,7 @@ ACTION_LOSSES = ("l1", "mse")
 class ObsACTConfig(ObservationConfig, ACTConfig):
     """ACT (LeRobot 0.4.4) whose observation encoder is chosen by `obs_space` / `encoder`.
 
-    Defaults are the paper's (Appendix C, DESIGN §6); see `lerobot_obsbench.presets` for the small CPU preset.
+    Defaults are the paper's (its Appendix C); see `lerobot_obsbench.presets` for the small CPU preset.
     """
 
     # Paper: feed-forward width 32 (LeRobot's default is 3200).

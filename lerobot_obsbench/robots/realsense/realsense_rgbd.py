@@ -1,4 +1,4 @@
-"""Intel RealSense as one RGB-D sensor for LeRobot robots (DESIGN §12).
+"""Intel RealSense as one RGB-D sensor for LeRobot robots (README: Real robot).
 
 LeRobot 0.4.4's `intelrealsense` camera reads colour and depth without aligning them, exposes no intrinsics and
 assumes millimetre depth units. Here one librealsense pipeline streams both at the same fps; a background thread
