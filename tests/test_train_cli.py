@@ -18,12 +18,15 @@ SPACES = ["rgb", "depth", "rgbd", "pointmap", "pointcloud"]
 
 
 def lerobot_train(
-    dataset: Path, out: Path, policy_type: str, obs_space: str, *extra: str
+    dataset: Path, out: Path, policy_type: str, obs_space: str | None, *extra: str, preset_for: str | None = None
 ) -> subprocess.CompletedProcess:
+    """Stock lerobot-train at tiny sizes; `obs_space=None` leaves the space to a named type (`preset_for`: the
+    base type and space whose tiny preset to use)."""
+    preset_type, preset_space = (policy_type, obs_space) if preset_for is None else preset_for
     cmd = [
         str(BIN / "lerobot-train"),
         f"--policy.type={policy_type}",
-        f"--policy.obs_space={obs_space}",
+        *([f"--policy.obs_space={obs_space}"] if obs_space else []),
         "--policy.device=cpu",
         "--dataset.repo_id=local/synthetic",
         f"--dataset.root={dataset}",
@@ -35,7 +38,7 @@ def lerobot_train(
         "--num_workers=0",
         "--wandb.enable=false",
         f"--output_dir={out}",
-        *preset_args("tiny", policy_type, obs_space),
+        *preset_args("tiny", preset_type, preset_space),
         *extra,
     ]
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "HF_DATASETS_OFFLINE": "1"}
@@ -131,3 +134,36 @@ def test_training_on_mostly_empty_frames_stops_early(tmp_path, synthetic_module)
     assert "training frames have no valid point inside the workspace" in proc.stderr
     assert "obsbench validate --root DATASET" in proc.stderr
     assert "step:50" not in proc.stdout + proc.stderr  # stopped within its first batches, not hours in
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "named, base, space", [("act_pcd", "obs_act", "pointcloud"), ("dp_rgb", "obs_diffusion", "rgb")]
+)
+def test_a_named_type_trains_and_loads_back_under_its_name(tiny_dataset, tmp_path, named, base, space):
+    import torch
+
+    from lerobot_obsbench.policies.loading import load_policy
+    from tests.helpers import first_batch, training_setup
+
+    proc = lerobot_train(tiny_dataset, tmp_path / "run", named, None, preset_for=(base, space))
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    ckpt = tmp_path / "run" / "checkpoints" / "last" / "pretrained_model"
+    config = json.loads((ckpt / "config.json").read_text())
+    assert config["type"] == named and config["obs_space"] == space
+    first, pre, _ = load_policy(ckpt)
+    second, _, _ = load_policy(ckpt)
+    assert (
+        first.config.type == named
+        and type(first).__name__ == "".join(p.capitalize() for p in named.split("_")) + "Policy"
+    )
+    assert isinstance(first, type(training_setup(base, space, tiny_dataset)[0]))  # obs_act / obs_diffusion code
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    batch = first_batch(LeRobotDataset("local/test", root=tiny_dataset), pre, batch_size=2)
+    batch = {k: v for k, v in batch.items() if k.startswith("observation.")}
+    torch.manual_seed(0)
+    a = first.select_action(batch)
+    torch.manual_seed(0)
+    b = second.select_action(batch)
+    assert torch.equal(a, b)

@@ -1,15 +1,16 @@
-"""`--env.type=obsbench`: the OBSBench ManiSkill3 tasks as a LeRobot EnvConfig."""
+"""`--env.type=obsbench`: the OBSBench ManiSkill3 tasks as a LeRobot EnvConfig; and one named env type per task
+(`--env.type=obsbench_pickcube` = `--env.type=obsbench --env.task=PickCube-v1`)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, make_dataclass
 
 from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
 
 from lerobot_obsbench.envs.maniskill import ACTION_DIMS, CONTROL_FPS, CONTROL_MODES, DEFAULT_CONTROL_MODE, STATE_DIM
 from lerobot_obsbench.envs.perturbations import parse_perturbation
-from lerobot_obsbench.envs.task import task_spec
+from lerobot_obsbench.envs.task import TASKS, task_spec
 from lerobot_obsbench.schema import ACTION_KEY, ENV_STATE_KEY, STATE_KEY, image_key
 
 
@@ -79,3 +80,37 @@ class ObsBenchEnvConfig(EnvConfig):
             "max_episode_steps": steps,
             "perturbation": self.perturbation,
         }
+
+
+def env_type_name(task: str) -> str:
+    """`PickCube-v1` -> `obsbench_pickcube`: the task's own `--env.type`."""
+    return "obsbench_" + task.rsplit("-v", 1)[0].replace("-", "").lower()
+
+
+def _named_post_init(self) -> None:
+    expected = NAMED_ENVS[self.type]
+    if self.task != expected:
+        raise ValueError(
+            f"--env.type={self.type} is the task {expected}; got --env.task={self.task}. Use "
+            f"--env.type={env_type_name(self.task)}, or --env.type=obsbench with --env.task."
+        )
+    ObsBenchEnvConfig.__post_init__(self)
+
+
+def _named_env(task: str) -> type:
+    cls = make_dataclass(
+        "ObsBench" + task.rsplit("-v", 1)[0].replace("-", "") + "EnvConfig",
+        [("task", str, field(default=task))],
+        bases=(ObsBenchEnvConfig,),
+        namespace={
+            "__post_init__": _named_post_init,
+            "__doc__": f"`--env.type=obsbench --env.task={task}` under its own name.",
+            "__module__": __name__,
+        },
+    )
+    return EnvConfig.register_subclass(env_type_name(task))(cls)
+
+
+# One env type per OBSBench task (`obsbench_pickcube`, `obsbench_stackcube`, ...): `obsbench` with the task fixed.
+NAMED_ENVS = {env_type_name(task): task for task in TASKS}
+NAMED_ENV_CONFIGS = {name: _named_env(task) for name, task in NAMED_ENVS.items()}

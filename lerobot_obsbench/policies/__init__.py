@@ -1,7 +1,8 @@
-"""obs_act and obs_diffusion: importing this package registers both policy types (and the `onecycle`
-scheduler) with LeRobot."""
+"""obs_act and obs_diffusion, and the named types of the paper's methods (act_pcd, dp_rgb, ...): importing
+this package registers them (and the `onecycle` scheduler) with LeRobot."""
 
+from lerobot_obsbench.policies.named import NAMED_POLICIES
 from lerobot_obsbench.policies.obs_act import ObsACTConfig
 from lerobot_obsbench.policies.obs_diffusion import ObsDiffusionConfig
 
-__all__ = ["ObsACTConfig", "ObsDiffusionConfig"]
+__all__ = ["NAMED_POLICIES", "ObsACTConfig", "ObsDiffusionConfig"]
