@@ -1,7 +1,8 @@
 """`obsbench` command line: what LeRobot has no command for.
 
-Simulation (doctor, demos, import-h5, eval), the benchmark (run, report, convert-results), datasets and
-configs (validate, encoders, preset, view) and real robots (find-cameras, calibrate-cameras, record, rollout).
+Simulation (doctor, demos, import-h5, eval), the benchmark (run, report, convert-results), the Hub (push,
+push-dataset), datasets and configs (validate, encoders, preset, view) and real robots (find-cameras,
+calibrate-cameras, record, rollout).
 Training and stock evaluation stay with LeRobot (`lerobot-train --policy.type=obs_act ...`, `lerobot-eval`).
 """
 
@@ -198,6 +199,22 @@ def cmd_convert(args: argparse.Namespace) -> int:
 
     backup = convert_v1(args.results)
     print(f"{args.results}: converted to train + eval records; the original is kept as {backup}")
+    return 0
+
+
+def cmd_push(args: argparse.Namespace) -> int:
+    from lerobot_obsbench.bench.hub import push_checkpoint
+
+    url = push_checkpoint(args.path, args.repo_id, args.checkpoint, args.private, args.eval)
+    print(f"{args.path} -> {url} (load it with --policy.path={args.repo_id}; the model card names the install line)")
+    return 0
+
+
+def cmd_push_dataset(args: argparse.Namespace) -> int:
+    from lerobot_obsbench.bench.hub import push_dataset
+
+    push_dataset(args.root, args.repo_id, args.private)
+    print(f"{args.root} -> {args.repo_id} (LeRobotDataset({args.repo_id!r}) downloads it)")
     return 0
 
 
@@ -489,6 +506,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("results", type=Path)
     p.set_defaults(func=cmd_convert)
 
+    p = sub.add_parser(
+        "push",
+        help="upload a grid run (OUT/runs/<run_id>) or a pretrained_model directory to the Hugging Face Hub, with a "
+        "model card: space, encoder, policy, task, dataset, budget, evaluation, install line",
+    )
+    p.add_argument("path", type=Path, help="OUT/runs/<run_id> of `obsbench run`, or a pretrained_model directory")
+    p.add_argument("repo_id", help="ORG/NAME on the Hub")
+    p.add_argument(
+        "--checkpoint", default="best", choices=("best", "last"), help="for a grid run: which evaluated checkpoint"
+    )
+    p.add_argument("--eval", type=Path, default=None, help="for a checkpoint directory: an `obsbench eval --out` file")
+    p.add_argument("--private", action="store_true")
+    p.set_defaults(func=cmd_push)
+
+    p = sub.add_parser("push-dataset", help="upload a LeRobotDataset (e.g. from obsbench demos) to the Hub")
+    p.add_argument("root", type=Path, help="dataset directory")
+    p.add_argument("repo_id", help="ORG/NAME on the Hub")
+    p.add_argument("--private", action="store_true")
+    p.set_defaults(func=cmd_push_dataset)
+
     p = sub.add_parser("find-cameras", help="list connected RealSense cameras (serials) and their calibration")
     p.add_argument(
         "--extrinsics-dir", default=None, help="where calibrate-cameras saved extrinsics (default: LeRobot's)"
@@ -575,6 +612,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     import lerobot_obsbench  # noqa: F401  (registers policies and encoders)
     from lerobot_obsbench.bench.grid import GridError
+    from lerobot_obsbench.bench.hub import PushError
     from lerobot_obsbench.bench.report import ReportError
     from lerobot_obsbench.bench.results import ResultsFormatError
     from lerobot_obsbench.envs.task import TaskError
@@ -582,7 +620,7 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         return args.func(args)
-    except (GridError, ReportError, TaskError, SchemaError, ResultsFormatError, OutputLockedError) as err:
+    except (GridError, ReportError, TaskError, SchemaError, ResultsFormatError, OutputLockedError, PushError) as err:
         print(f"obsbench {args.command}: error: {err}", file=sys.stderr)
         return 2
     except (PermissionError, FileNotFoundError, FileExistsError) as err:  # a path the user gave: one line

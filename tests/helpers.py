@@ -52,8 +52,9 @@ def frame_batch(synthetic, batch_size: int = 2, size: int = 32, seed: int = 0, c
     }
 
 
-def training_setup(policy_type: str, obs_space: str, root, preset: str = "tiny", **overrides):
-    """(policy, preprocessor, dataset) built the way lerobot-train builds them, for in-process tests."""
+def training_setup(policy_type: str, obs_space: str, root, preset: str = "tiny", named: str | None = None, **overrides):
+    """(policy, preprocessor, dataset) built the way lerobot-train builds them, for in-process tests; `named`: a
+    named type (act_pcd, ...) of `policy_type` on `obs_space` to build instead."""
     from lerobot.configs.policies import PreTrainedConfig
     from lerobot.datasets.factory import resolve_delta_timestamps
     from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
@@ -63,7 +64,7 @@ def training_setup(policy_type: str, obs_space: str, root, preset: str = "tiny",
 
     fields = {**preset_overrides(preset, policy_type, obs_space, overrides.get("encoder")), **overrides}
     fields.setdefault("workspace", [-0.5, 0.5, -0.5, 0.5, 0.005, 0.5])
-    cfg = PreTrainedConfig.get_choice_class(policy_type)(obs_space=obs_space, device="cpu", **fields)
+    cfg = PreTrainedConfig.get_choice_class(named or policy_type)(obs_space=obs_space, device="cpu", **fields)
     meta = LeRobotDatasetMetadata("local/test", root=root)
     policy = make_policy(cfg, ds_meta=meta)
     pre, post = make_pre_post_processors(cfg, dataset_stats=meta.stats)

@@ -8,16 +8,29 @@ from pathlib import Path
 
 def load_policy(path: str | Path, device: str = "cpu"):
     """(policy in eval mode on `device`, preprocessor, postprocessor) of the checkpoint at `path`: a
-    `pretrained_model` directory, or a Hub repo id (`ORG/NAME`)."""
-    from lerobot.configs.policies import PreTrainedConfig
+    `pretrained_model` directory, or a Hub repo id (`ORG/NAME`, from the local cache when HF_HUB_OFFLINE=1)."""
+    import os
 
-    check_policy_path(path)
+    from huggingface_hub.errors import LocalEntryNotFoundError, OfflineModeIsEnabled
+    from lerobot.configs.policies import PreTrainedConfig
     from lerobot.policies.factory import get_policy_class, make_pre_post_processors
 
-    config = PreTrainedConfig.from_pretrained(path)
-    config.device = device
-    policy = get_policy_class(config.type).from_pretrained(path, config=config).eval()
-    pre, post = make_pre_post_processors(policy.config, pretrained_path=str(path))
+    check_policy_path(path)
+    try:
+        config = PreTrainedConfig.from_pretrained(path)
+        config.device = device
+        policy = get_policy_class(config.type).from_pretrained(path, config=config).eval()
+        pre, post = make_pre_post_processors(policy.config, pretrained_path=str(path))
+    except (LocalEntryNotFoundError, OfflineModeIsEnabled, FileNotFoundError) as err:
+        if Path(str(path)).expanduser().is_dir():
+            raise
+        offline = os.environ.get("HF_HUB_OFFLINE", "0").lower() in ("1", "true", "yes")
+        where = "the Hub is off (HF_HUB_OFFLINE=1)" if offline else "the Hub did not provide it"
+        raise FileNotFoundError(
+            f"policy {path}: no local directory of that name, not in the Hugging Face cache, and {where} "
+            f"({type(err).__name__}). Download it where the Hub is reachable (`huggingface-cli download {path}`) "
+            "or pass a local pretrained_model directory."
+        ) from None
     return policy, pre, post
 
 

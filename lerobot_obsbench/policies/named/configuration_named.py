@@ -69,6 +69,7 @@ def _make(type_name: str) -> type:
             "__post_init__": _post_init,
             "__doc__": f"`{base_type}` with obs_space={space!r}, encoder {encoder!r} by default.",
             "__module__": __name__,
+            "base_type": base_type,  # the plugin type this one presets (model cards name it)
         },
     )
     return PreTrainedConfig.register_subclass(type_name)(cls)

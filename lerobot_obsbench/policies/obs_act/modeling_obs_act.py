@@ -11,6 +11,7 @@ from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 from torch import Tensor
 
 from lerobot_obsbench.policies.env_passthrough import EnvObservationMixin
+from lerobot_obsbench.policies.model_card import ModelCardMixin
 from lerobot_obsbench.policies.obs_act.configuration_obs_act import ObsACTConfig
 from lerobot_obsbench.policies.observation_encoder import ObservationEncoder
 
@@ -81,7 +82,7 @@ class ObsACT(ACT):
         return self.action_head(decoder_out.transpose(0, 1)), (mu, log_sigma_x2)
 
 
-class ObsACTPolicy(EnvObservationMixin, ACTPolicy):
+class ObsACTPolicy(ModelCardMixin, EnvObservationMixin, ACTPolicy):
     """ACT policy (action queue, temporal ensembling from LeRobot) over any observation space."""
 
     config_class = ObsACTConfig

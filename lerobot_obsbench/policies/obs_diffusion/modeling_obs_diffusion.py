@@ -18,6 +18,7 @@ from lerobot.utils.constants import OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 from torch import Tensor, nn
 
 from lerobot_obsbench.policies.env_passthrough import EnvObservationMixin
+from lerobot_obsbench.policies.model_card import ModelCardMixin
 from lerobot_obsbench.policies.obs_diffusion.configuration_obs_diffusion import ObsDiffusionConfig
 from lerobot_obsbench.policies.observation_encoder import ObservationEncoder
 
@@ -115,7 +116,7 @@ class ObsDiffusionModel(DiffusionModel):
         return super().compute_loss({OBS_IMAGES: batch[self.observation.input_keys[0]], **batch})
 
 
-class ObsDiffusionPolicy(EnvObservationMixin, DiffusionPolicy):
+class ObsDiffusionPolicy(ModelCardMixin, EnvObservationMixin, DiffusionPolicy):
     """Diffusion policy (queues, inference loop from LeRobot) over any observation space."""
 
     config_class = ObsDiffusionConfig
