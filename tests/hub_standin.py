@@ -1,10 +1,11 @@
 """A local stand-in for the Hugging Face Hub (this machine cannot reach it).
 
 Uploads go through the real `HfApi` calls the code makes; the stand-in replaces only the network side of
-`create_repo`, `upload_folder`, `upload_file`, the tag calls and the card's YAML check: the files land in `root/remote/<type>s/<repo>`
-and are also laid out as a downloaded snapshot in a Hugging Face cache (`root/cache`: `<type>s--ORG--NAME/refs/main`
-+ `snapshots/<commit>/...`). A new process with `HF_HUB_CACHE=root/cache` and `HF_HUB_OFFLINE=1` then pulls them
-through huggingface_hub's own offline resolution, as a machine that downloaded them would.
+`create_repo`, `upload_folder`, `upload_file`, the tag calls and the card's YAML check: the files land in
+`root/remote/<type>s/<repo>` and are also laid out as a downloaded snapshot in a Hugging Face cache
+(`root/cache`: `<type>s--ORG--NAME/refs/main` + `snapshots/<commit>/...`). A new process with
+`HF_HUB_CACHE=root/cache` and `HF_HUB_OFFLINE=1` then pulls them through huggingface_hub's own offline
+resolution, as a machine that downloaded them would.
 """
 
 from __future__ import annotations
