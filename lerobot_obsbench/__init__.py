@@ -6,7 +6,11 @@ real-robot hardware types (`obsbench_realsense_rgbd`, `obsbench_koch_follower`, 
 data-loading fixes (see `lerobot_obsbench.patches`).
 """
 
+import os
 from importlib.metadata import version
+
+# SVT-AV1, LeRobot's video encoder, prints ~20 banner lines per encoded episode; keep its errors only.
+os.environ.setdefault("SVT_LOG", "1")
 
 from lerobot_obsbench import patches
 

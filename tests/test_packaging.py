@@ -48,3 +48,16 @@ def test_wheel_finds_the_preset_grids(tmp_path):
     assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-3000:]
     assert run.stdout.splitlines()[0].startswith(str(tmp_path / "site"))
     assert "grid quick:" in run.stdout and "to train" in run.stdout
+
+
+def test_the_environment_is_consistent():
+    """The README's set-up gives one OpenCV (sapien's opencv-python and LeRobot's headless build write the same
+    cv2 package) and no broken requirement."""
+    from importlib.metadata import version
+
+    import cv2
+
+    assert version("opencv-python") == version("opencv-python-headless")
+    assert version("opencv-python-headless").startswith(cv2.__version__)
+    check = subprocess.run([sys.executable, "-m", "pip", "check"], capture_output=True, text=True, timeout=300)
+    assert check.returncode == 0, check.stdout + check.stderr

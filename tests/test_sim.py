@@ -175,7 +175,14 @@ def demos(tmp_path_factory) -> Path:
     rerun = _demos(out, 5)
     log, _ = rerun.communicate(timeout=600)
     assert rerun.returncode == 0, log[-3000:]
+    (out.parent / "rerun.log").write_text(log)
     return out
+
+
+def test_demos_output_is_free_of_the_video_encoder_banner(demos):
+    log = (demos.parent / "rerun.log").read_text()
+    assert "episodes of PickCube-v1" in log
+    assert "Svt[info]" not in log and "SVT [config]" not in log
 
 
 def test_a_second_recorder_on_the_same_output_is_refused(demos):
