@@ -202,6 +202,57 @@ def cmd_convert(args: argparse.Namespace) -> int:
     return 0
 
 
+def train_command(items: list[str]) -> list[str]:
+    """The brief's spelling -> stock lerobot-train arguments: `policy=act_pcd env=obsbench_pickcube
+    [dataset=DIR] [preset=cpu] [key.sub=value ...] [--any.lerobot=flag ...]`. The dataset defaults to
+    data/<task> (what `obsbench demos` is told to write there); a missing one is refused naming that command."""
+    from lerobot.envs.configs import EnvConfig
+
+    from lerobot_obsbench.policies.named import NAMED_POLICIES
+    from lerobot_obsbench.presets import preset_args
+
+    values, flags = {}, []
+    for item in items:
+        if item.startswith("--"):
+            flags.append(item)
+        elif "=" in item:
+            key, value = item.split("=", 1)
+            values[key] = value
+        else:
+            raise SystemExit(f"obsbench train: {item!r} is neither key=value nor a --lerobot.flag")
+    policy, env = values.pop("policy", None), values.pop("env", None)
+    if policy is None or env is None:
+        raise SystemExit(
+            "obsbench train: give policy=TYPE and env=TYPE, e.g. obsbench train policy=act_pcd env=obsbench_pickcube "
+            f"(named policy types: {', '.join(NAMED_POLICIES)})"
+        )
+    task = EnvConfig.get_choice_class(env)().task if env.startswith("obsbench") else values.get("env.task")
+    root = values.pop("dataset", None) or f"data/{env.removeprefix('obsbench_')}"
+    if not any(f.startswith("--dataset.root") for f in flags):
+        if not (Path(root) / "meta" / "info.json").is_file():
+            raise FileNotFoundError(
+                f"no dataset at {root}: record it with `obsbench demos --task {task} --episodes 100 --out {root}` "
+                "(or pass dataset=DIR)"
+            )
+        flags += [f"--dataset.root={root}", f"--dataset.repo_id=local/{Path(root).name}"]
+    preset = values.pop("preset", None)
+    if preset is not None:
+        base, space, _ = NAMED_POLICIES.get(policy, (policy, values.get("policy.obs_space", "pointcloud"), None))
+        flags += preset_args(preset, base, space, values.get("policy.encoder"))
+    return [f"--policy.type={policy}", f"--env.type={env}", *(f"--{k}={v}" for k, v in values.items()), *flags]
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    import shlex
+    import subprocess
+
+    command = [sys.executable, "-m", "lerobot.scripts.lerobot_train", *train_command(args.items)]
+    print("lerobot-train " + shlex.join(command[3:]), flush=True)
+    if args.dry_run:
+        return 0
+    return subprocess.run(command).returncode
+
+
 def cmd_push(args: argparse.Namespace) -> int:
     from lerobot_obsbench.bench.hub import push_checkpoint
 
@@ -505,6 +556,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("results", type=Path)
     p.set_defaults(func=cmd_convert)
+
+    p = sub.add_parser(
+        "train",
+        help="train with stock lerobot-train in the brief's spelling: obsbench train policy=act_pcd "
+        "env=obsbench_pickcube [dataset=DIR] [preset=cpu] [policy.field=value ...] [--lerobot.flag=value ...]",
+    )
+    p.add_argument("--dry-run", action="store_true", help="print the lerobot-train command and stop")
+    p.add_argument("items", nargs=argparse.REMAINDER, help="key=value items and --flags passed to lerobot-train")
+    p.set_defaults(func=cmd_train)
 
     p = sub.add_parser(
         "push",

@@ -154,3 +154,26 @@ def test_asset_hint_names_flags_that_exist():
         assert "--asset-dir" in sub._option_string_actions
     eval_parser = parser._subparsers._group_actions[0].choices["eval"]
     assert "--env.asset_dir" in eval_parser._option_string_actions
+
+
+def test_train_front_end_speaks_the_brief_and_names_the_missing_dataset(tiny_dataset, tmp_path, capsys):
+    from lerobot_obsbench.cli import train_command
+
+    command = train_command(
+        [
+            "policy=act_pcd",
+            "env=obsbench_pickcube",
+            f"dataset={tiny_dataset}",
+            "preset=tiny",
+            "policy.device=cpu",
+            "--steps=3",
+        ]
+    )
+    assert command[:3] == ["--policy.type=act_pcd", "--env.type=obsbench_pickcube", "--policy.device=cpu"]
+    assert "--steps=3" in command and f"--dataset.root={tiny_dataset}" in command
+    assert "--policy.dim_model=32" in command  # the tiny preset of obs_act on pointcloud
+    assert main(["train", "--dry-run", "policy=act_pcd", "env=obsbench_pickcube", f"dataset={tmp_path}"]) == 2
+    assert (
+        f"no dataset at {tmp_path}: record it with `obsbench demos --task PickCube-v1 --episodes 100 --out "
+        f"{tmp_path}`" in capsys.readouterr().err
+    )

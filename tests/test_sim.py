@@ -487,3 +487,94 @@ def test_perturbations_change_what_they_name_and_nothing_else():
     assert np.median(np.abs(noisy_depth - depth)) <= 2
     with pytest.raises(ValueError, match="camera_yaw:DEG"):
         ObsBenchEnvConfig(task="PushCube-v1", perturbation="fog:1")
+
+
+def test_lerobot_train_named_policy_on_named_env_end_to_end(demos, tmp_path):
+    """The brief's command: stock lerobot-train with --policy.type=act_pcd --env.type=obsbench_pickcube, tiny
+    sizes, evaluating in the env during training as LeRobot does."""
+    from lerobot_obsbench.presets import preset_args
+
+    out = tmp_path / "run"
+    train = subprocess.run(
+        [
+            str(BIN / "lerobot-train"),
+            "--policy.type=act_pcd",
+            "--env.type=obsbench_pickcube",
+            f"--env.image_size={SIZE}",
+            "--policy.device=cpu",
+            *preset_args("tiny", "obs_act", "pointcloud"),
+            "--dataset.repo_id=local/demos",
+            f"--dataset.root={demos}",
+            "--batch_size=4",
+            "--steps=4",
+            "--save_freq=4",
+            "--eval_freq=4",
+            "--eval.n_episodes=1",
+            "--eval.batch_size=1",
+            "--num_workers=0",
+            "--wandb.enable=false",
+            f"--output_dir={out}",
+        ],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        stdin=subprocess.DEVNULL,
+        timeout=900,
+    )
+    assert train.returncode == 0, train.stderr[-3000:]
+    log = train.stdout + train.stderr
+    assert "pc_success" in log or "eval/pc_success" in log or "Eval policy" in log
+    config = json.loads((out / "checkpoints" / "last" / "pretrained_model" / "config.json").read_text())
+    assert config["type"] == "act_pcd" and config["obs_space"] == "pointcloud" and config["encoder"] == "pointnet"
+
+
+def test_a_pushed_checkpoint_evaluates_from_the_hub_in_new_processes(checkpoint, tmp_path, monkeypatch):
+    """obsbench push to the local Hub stand-in, then `lerobot-eval --policy.path=ORG/NAME` and `obsbench eval
+    --policy.path=ORG/NAME` in fresh processes that see only the pulled cache (HF_HUB_OFFLINE=1)."""
+    from lerobot_obsbench.cli import main
+    from tests.hub_standin import LocalHub
+
+    hub = LocalHub(tmp_path / "hub").install(monkeypatch)
+    assert main(["push", str(checkpoint), "me/pickcube-pc"]) == 0
+    env = {**ENV, **hub.env()}
+    stock = subprocess.run(
+        [
+            str(BIN / "lerobot-eval"),
+            "--policy.path=me/pickcube-pc",
+            "--policy.device=cpu",
+            "--env.type=obsbench",
+            "--env.task=PickCube-v1",
+            f"--env.image_size={SIZE}",
+            "--eval.n_episodes=1",
+            "--eval.batch_size=1",
+            f"--output_dir={tmp_path / 'eval'}",
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        stdin=subprocess.DEVNULL,
+        timeout=600,
+    )
+    assert stock.returncode == 0, stock.stderr[-3000:]
+    assert "'pc_success'" in stock.stdout + stock.stderr
+    ours = subprocess.run(
+        [
+            str(BIN / "obsbench"),
+            "eval",
+            "--policy.path",
+            "me/pickcube-pc",
+            "--env.task",
+            "PickCube-v1",
+            "--episodes",
+            "1",
+            "--out",
+            str(tmp_path / "eval.json"),
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        stdin=subprocess.DEVNULL,
+        timeout=600,
+    )
+    assert ours.returncode == 0, ours.stderr[-3000:]
+    assert json.loads((tmp_path / "eval.json").read_text())["policy_path"] == "me/pickcube-pc"
