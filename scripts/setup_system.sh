@@ -3,7 +3,9 @@
 # - the simulator: SAPIEN renders through Vulkan, and bookworm's own lavapipe (Mesa 22) lacks
 #   descriptorBindingPartiallyBound, so Mesa 25's lavapipe comes from Debian's bookworm-backports suite, added to
 #   the machine's existing Debian apt source (its mirror is kept);
-# - RealSense cameras: pyrealsense2 loads libusb-1.0 (Debian's libusb-1.0-0).
+# - RealSense cameras: pyrealsense2 loads libusb-1.0 (Debian's libusb-1.0-0);
+# - video decoding: torchcodec, LeRobot's default decoder (stock tools such as lerobot-dataset-viz use it), loads
+#   FFmpeg's shared libraries (bookworm's FFmpeg 5.1).
 # Idempotent; run as root (or with sudo available).
 set -euo pipefail
 
@@ -18,12 +20,17 @@ lavapipe_ok() {
     [ -n "$version" ] && dpkg --compare-versions "$version" ge 24 && dpkg-query -W libvulkan1 >/dev/null 2>&1
 }
 
-libusb_ok() {
-    dpkg-query -W -f='${Status}' libusb-1.0-0 2>/dev/null | grep -q "install ok installed"
+installed() {
+    local package
+    for package in "$@"; do
+        dpkg-query -W -f='${Status}' "$package" 2>/dev/null | grep -q "install ok installed" || return 1
+    done
 }
 
-if lavapipe_ok && libusb_ok; then
-    echo "setup_system: Mesa lavapipe $(dpkg-query -W -f='${Version}' mesa-vulkan-drivers) and libusb-1.0-0 already installed"
+FFMPEG_LIBS="libavutil57 libavcodec59 libavformat59 libavdevice59 libavfilter8 libswscale6 libswresample4"
+
+if lavapipe_ok && installed libusb-1.0-0 && installed $FFMPEG_LIBS; then
+    echo "setup_system: Mesa lavapipe $(dpkg-query -W -f='${Version}' mesa-vulkan-drivers), libusb-1.0-0 and FFmpeg's libraries already installed"
     exit 0
 fi
 export DEBIAN_FRONTEND=noninteractive
@@ -42,8 +49,9 @@ if ! lavapipe_ok; then
     $SUDO apt-get install -y -qq -t bookworm-backports mesa-vulkan-drivers libvulkan1 >/dev/null
     echo "setup_system: installed Mesa lavapipe $(dpkg-query -W -f='${Version}' mesa-vulkan-drivers)"
 fi
-if ! libusb_ok; then
+if ! installed libusb-1.0-0 $FFMPEG_LIBS; then
     $SUDO apt-get update -qq
-    $SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null
-    echo "setup_system: installed libusb-1.0-0"
+    # shellcheck disable=SC2086
+    $SUDO apt-get install -y -qq libusb-1.0-0 $FFMPEG_LIBS >/dev/null
+    echo "setup_system: installed libusb-1.0-0 and FFmpeg's libraries"
 fi

@@ -578,3 +578,27 @@ def test_a_pushed_checkpoint_evaluates_from_the_hub_in_new_processes(checkpoint,
     )
     assert ours.returncode == 0, ours.stderr[-3000:]
     assert json.loads((tmp_path / "eval.json").read_text())["policy_path"] == "me/pickcube-pc"
+
+
+def test_stock_dataset_viewer_opens_recorded_demos(demos, tmp_path):
+    """lerobot-dataset-viz (stock) on a dataset written by obsbench demos: colour and the 1-D signals; depth and
+    the fused cloud are `obsbench view`'s job (LeRobot's viewer shows only image features)."""
+    viz = subprocess.run(
+        [
+            str(BIN / "lerobot-dataset-viz"),
+            "--repo-id=local/demos",
+            f"--root={demos}",
+            "--episode-index=0",
+            "--save=1",
+            f"--output-dir={tmp_path}",
+            "--num-workers=0",
+        ],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        stdin=subprocess.DEVNULL,
+        timeout=600,
+    )
+    assert viz.returncode == 0, viz.stderr[-3000:]
+    recording = tmp_path / "local_demos_episode_0.rrd"
+    assert recording.is_file() and b"observation.images.base_camera" in recording.read_bytes()
