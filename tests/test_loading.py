@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import sys
 
 import pytest
 import torch
@@ -63,6 +64,10 @@ def test_video_backend_falls_back_to_pyav_when_torchcodec_cannot_load(tiny_datas
 
     monkeypatch.setitem(patches._STOCK, "decode", spy)
     patches.torchcodec_loads.cache_clear()
+    # a machine whose torchcodec cannot load FFmpeg: its modules are not importable (and not already imported,
+    # which they are here when this machine's FFmpeg let an earlier test load them)
+    for name in [m for m in sys.modules if m == "torchcodec" or m.startswith("torchcodec.")]:
+        monkeypatch.delitem(sys.modules, name)
     monkeypatch.setattr("builtins.__import__", _failing_import("torchcodec.decoders", __import__))
     with caplog.at_level(logging.WARNING):
         frame = LeRobotDataset("local/test", root=tiny_dataset, video_backend="torchcodec")[0]

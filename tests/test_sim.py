@@ -261,25 +261,30 @@ def checkpoint(demos, tmp_path_factory) -> Path:
     return out / "run" / "checkpoints" / "last" / "pretrained_model"
 
 
-def test_end_to_end_demos_train_stock_lerobot_eval(checkpoint, tmp_path):
-    evaluation = subprocess.run(
+def _stock_eval(policy: str, out: Path, *flags: str, episodes: int = 1, env=ENV) -> subprocess.CompletedProcess:
+    """Stock lerobot-eval of `policy` (a path or ORG/NAME) on the obsbench env, one env at a time."""
+    return subprocess.run(
         [
             str(BIN / "lerobot-eval"),
-            f"--policy.path={checkpoint}",
+            f"--policy.path={policy}",
             "--policy.device=cpu",
             "--env.type=obsbench",
             "--env.task=PickCube-v1",
-            f"--env.image_size={SIZE}",
-            "--eval.n_episodes=2",
+            *flags,
+            f"--eval.n_episodes={episodes}",
             "--eval.batch_size=1",
-            f"--output_dir={tmp_path / 'eval'}",
+            f"--output_dir={out}",
         ],
         capture_output=True,
         text=True,
-        env=ENV,
+        env=env,
         stdin=subprocess.DEVNULL,
         timeout=600,
     )
+
+
+def test_end_to_end_demos_train_stock_lerobot_eval(checkpoint, tmp_path):
+    evaluation = _stock_eval(checkpoint, tmp_path / "eval", f"--env.image_size={SIZE}", episodes=2)
     assert evaluation.returncode == 0, evaluation.stderr[-3000:]
     out = evaluation.stdout + evaluation.stderr
     assert "'pc_success'" in out and "'n_episodes': 2" in out
@@ -297,24 +302,7 @@ def test_end_to_end_demos_train_stock_lerobot_eval(checkpoint, tmp_path):
 )
 def test_stock_lerobot_eval_refuses_a_mismatched_env(checkpoint, tmp_path, flags, message):
     """The README's lerobot-eval line without the image size used to evaluate at 128x128 and report success."""
-    evaluation = subprocess.run(
-        [
-            str(BIN / "lerobot-eval"),
-            f"--policy.path={checkpoint}",
-            "--policy.device=cpu",
-            "--env.type=obsbench",
-            "--env.task=PickCube-v1",
-            *flags,
-            "--eval.n_episodes=1",
-            "--eval.batch_size=1",
-            f"--output_dir={tmp_path / 'eval'}",
-        ],
-        capture_output=True,
-        text=True,
-        env=ENV,
-        stdin=subprocess.DEVNULL,
-        timeout=600,
-    )
+    evaluation = _stock_eval(checkpoint, tmp_path / "eval", *flags)
     assert evaluation.returncode != 0
     assert "Policy and env do not match: " + message in evaluation.stderr
     assert "pc_success" not in evaluation.stdout + evaluation.stderr
@@ -537,24 +525,7 @@ def test_a_pushed_checkpoint_evaluates_from_the_hub_in_new_processes(checkpoint,
     hub = LocalHub(tmp_path / "hub").install(monkeypatch)
     assert main(["push", str(checkpoint), "me/pickcube-pc"]) == 0
     env = {**ENV, **hub.env()}
-    stock = subprocess.run(
-        [
-            str(BIN / "lerobot-eval"),
-            "--policy.path=me/pickcube-pc",
-            "--policy.device=cpu",
-            "--env.type=obsbench",
-            "--env.task=PickCube-v1",
-            f"--env.image_size={SIZE}",
-            "--eval.n_episodes=1",
-            "--eval.batch_size=1",
-            f"--output_dir={tmp_path / 'eval'}",
-        ],
-        capture_output=True,
-        text=True,
-        env=env,
-        stdin=subprocess.DEVNULL,
-        timeout=600,
-    )
+    stock = _stock_eval("me/pickcube-pc", tmp_path / "eval", f"--env.image_size={SIZE}", env=env)
     assert stock.returncode == 0, stock.stderr[-3000:]
     assert "'pc_success'" in stock.stdout + stock.stderr
     ours = subprocess.run(
