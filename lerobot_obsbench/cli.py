@@ -103,6 +103,9 @@ def cmd_import(args: argparse.Namespace) -> int:
 
 def cmd_eval(args: argparse.Namespace) -> int:
     from lerobot_obsbench.envs.evaluate import evaluate, write_result
+    from lerobot_obsbench.envs.perturbations import parse_perturbation
+
+    parse_perturbation(args.perturbation)  # a typo fails before the policy and the simulator load
 
     result = evaluate(
         args.policy_path,
@@ -675,12 +678,22 @@ def main(argv: list[str] | None = None) -> int:
     from lerobot_obsbench.bench.hub import PushError
     from lerobot_obsbench.bench.report import ReportError
     from lerobot_obsbench.bench.results import ResultsFormatError
+    from lerobot_obsbench.envs.perturbations import PerturbationError
     from lerobot_obsbench.envs.task import TaskError
     from lerobot_obsbench.locks import OutputLockedError
 
     try:
         return args.func(args)
-    except (GridError, ReportError, TaskError, SchemaError, ResultsFormatError, OutputLockedError, PushError) as err:
+    except (
+        GridError,
+        ReportError,
+        TaskError,
+        SchemaError,
+        ResultsFormatError,
+        OutputLockedError,
+        PushError,
+        PerturbationError,
+    ) as err:
         print(f"obsbench {args.command}: error: {err}", file=sys.stderr)
         return 2
     except (PermissionError, FileNotFoundError, FileExistsError) as err:  # a path the user gave: one line

@@ -120,6 +120,12 @@ def test_small_probes_get_one_line_answers(tmp_path, capsys):
         "lerobot-train, or a Hub repo id ORG/NAME)"
     )
 
+    args = ["eval", "--policy.path", str(missing), "--env.task", "PushCube-v1", "--env.perturbation", "light:nan"]
+    assert main(args) == 2  # the perturbation is checked before the checkpoint is even looked for
+    assert capsys.readouterr().err.strip() == (
+        "obsbench eval: error: perturbation 'light:nan': expected light:I (e.g. light:0.03), with finite numbers"
+    )
+
     assert main(["report", str(tmp_path / "results.jsonl")]) == 2
     assert capsys.readouterr().err.strip() == (
         f"obsbench report: error: results file {tmp_path / 'results.jsonl'} not found (`obsbench run` writes "

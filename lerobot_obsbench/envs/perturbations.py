@@ -35,6 +35,10 @@ DEFAULT_AMBIENT = 0.3
 NOMINAL_VALUE = {"camera_yaw": 0.0, "camera_pitch": 0.0, "light": DEFAULT_AMBIENT, "noise": None, "background": None}
 
 
+class PerturbationError(ValueError):
+    """A perturbation written wrongly (`kind:value`)."""
+
+
 @dataclass(frozen=True)
 class Perturbation:
     kind: str
@@ -51,12 +55,12 @@ class Perturbation:
 
 
 def parse_perturbation(text: str) -> Perturbation | None:
-    """`kind:value` -> Perturbation; `none` -> None. Raises ValueError naming the valid forms."""
+    """`kind:value` -> Perturbation; `none` -> None. Raises PerturbationError naming the valid forms."""
     if text in (None, "", "none"):
         return None
     kind, _, raw = str(text).partition(":")
     if kind not in KINDS or not raw:
-        raise ValueError(
+        raise PerturbationError(
             f"unknown perturbation {text!r}; write one of camera_yaw:DEG, camera_pitch:DEG, light:I, "
             "background:R,G,B, noise:SPP (or none)"
         )
@@ -65,16 +69,16 @@ def parse_perturbation(text: str) -> Perturbation | None:
     except ValueError:
         value = ()
     if not value or not all(math.isfinite(v) for v in value):
-        raise ValueError(f"perturbation {text!r}: expected {FORMS[kind]}, with finite numbers")
+        raise PerturbationError(f"perturbation {text!r}: expected {FORMS[kind]}, with finite numbers")
     expected = 3 if kind == "background" else 1
     if len(value) != expected:
-        raise ValueError(f"perturbation {text!r}: {kind} takes {expected} number(s)")
+        raise PerturbationError(f"perturbation {text!r}: {kind} takes {expected} number(s)")
     if kind == "light" and value[0] < 0 or kind == "background" and not all(0 <= v <= 1 for v in value):
-        raise ValueError(f"perturbation {text!r}: light must be >= 0 and colours in [0, 1]")
+        raise PerturbationError(f"perturbation {text!r}: light must be >= 0 and colours in [0, 1]")
     if kind == "noise" and (value[0] < 1 or value[0] != int(value[0])):
-        raise ValueError(f"perturbation {text!r}: noise takes a whole number of samples per pixel >= 1")
+        raise PerturbationError(f"perturbation {text!r}: noise takes a whole number of samples per pixel >= 1")
     if kind.startswith("camera") and abs(value[0]) >= 80:
-        raise ValueError(f"perturbation {text!r}: camera angles must be within +-80 degrees")
+        raise PerturbationError(f"perturbation {text!r}: camera angles must be within +-80 degrees")
     return Perturbation(kind, value)
 
 
