@@ -118,6 +118,7 @@ def test_push_a_grid_run_and_pull_it_in_a_new_process(grid_run, tmp_path, monkey
         "| encoder | `pointnet` |",
         "| policy | `act_pcd` (`obs_act`) |",
         "| task | PushCube-v1 |",
+        "| dataset | 6 scripted PushCube-v1 demonstrations from `obsbench demos` (not on the Hub) |",
         "| training budget | 4 steps x batch 4 = 16 samples on 6 demonstrations |",
         "| success rate | 10/30 = 0.33 (95% Wilson interval [0.19, 0.51]) |",
         "| evaluation episodes | 30 (seeds 0..29) |",

@@ -42,7 +42,9 @@ def _grid_run(run_dir: Path, checkpoint: str) -> tuple[Path, dict, list[dict], s
     path = Path(train["checkpoints"][str(step)]) if step is not None else Path(train["checkpoint"])
     if not path.is_absolute():
         path = Path.cwd() / path
-    return path, train, tests, str(out / "demos")
+    config = train["config"]
+    dataset = f"{config['demos']} scripted {config['task']} demonstrations from `obsbench demos` (not on the Hub)"
+    return path, train, tests, dataset
 
 
 def push_checkpoint(
