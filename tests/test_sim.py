@@ -230,16 +230,14 @@ def test_recorded_table_is_at_world_z_zero(demos):
     assert abs(float(near_table.median())) < 2e-3
 
 
-@pytest.fixture(scope="module")
-def checkpoint(demos, tmp_path_factory) -> Path:
+def _train_on_demos(demos: Path, out: Path, *flags: str) -> subprocess.CompletedProcess:
+    """Stock lerobot-train of a tiny ACT point-cloud policy on the recorded demos, 4 steps of 4 samples."""
     from lerobot_obsbench.presets import preset_args
 
-    out = tmp_path_factory.mktemp("train")
-    train = subprocess.run(
+    return subprocess.run(
         [
             str(BIN / "lerobot-train"),
-            "--policy.type=obs_act",
-            "--policy.obs_space=pointcloud",
+            *flags,
             "--policy.device=cpu",
             *preset_args("tiny", "obs_act", "pointcloud"),
             "--dataset.repo_id=local/demos",
@@ -249,16 +247,22 @@ def checkpoint(demos, tmp_path_factory) -> Path:
             "--save_freq=4",
             "--num_workers=0",
             "--wandb.enable=false",
-            f"--output_dir={out / 'run'}",
+            f"--output_dir={out}",
         ],
         capture_output=True,
         text=True,
         env=ENV,
         stdin=subprocess.DEVNULL,
-        timeout=600,
+        timeout=900,
     )
+
+
+@pytest.fixture(scope="module")
+def checkpoint(demos, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("train") / "run"
+    train = _train_on_demos(demos, out, "--policy.type=obs_act", "--policy.obs_space=pointcloud")
     assert train.returncode == 0, train.stderr[-3000:]
-    return out / "run" / "checkpoints" / "last" / "pretrained_model"
+    return out / "checkpoints" / "last" / "pretrained_model"
 
 
 def _stock_eval(policy: str, out: Path, *flags: str, episodes: int = 1, env=ENV) -> subprocess.CompletedProcess:
@@ -480,38 +484,21 @@ def test_perturbations_change_what_they_name_and_nothing_else():
 def test_lerobot_train_named_policy_on_named_env_end_to_end(demos, tmp_path):
     """The brief's command: stock lerobot-train with --policy.type=act_pcd --env.type=obsbench_pickcube, tiny
     sizes, evaluating in the env during training as LeRobot does."""
-    from lerobot_obsbench.presets import preset_args
-
     out = tmp_path / "run"
-    train = subprocess.run(
-        [
-            str(BIN / "lerobot-train"),
-            "--policy.type=act_pcd",
-            "--env.type=obsbench_pickcube",
-            f"--env.image_size={SIZE}",
-            "--policy.device=cpu",
-            *preset_args("tiny", "obs_act", "pointcloud"),
-            "--dataset.repo_id=local/demos",
-            f"--dataset.root={demos}",
-            "--batch_size=4",
-            "--steps=4",
-            "--save_freq=4",
-            "--eval_freq=4",
-            "--eval.n_episodes=1",
-            "--eval.batch_size=1",
-            "--num_workers=0",
-            "--wandb.enable=false",
-            f"--output_dir={out}",
-        ],
-        capture_output=True,
-        text=True,
-        env=ENV,
-        stdin=subprocess.DEVNULL,
-        timeout=900,
+    train = _train_on_demos(
+        demos,
+        out,
+        "--policy.type=act_pcd",
+        "--env.type=obsbench_pickcube",
+        f"--env.image_size={SIZE}",
+        "--eval_freq=4",
+        "--eval.n_episodes=1",
+        "--eval.batch_size=1",
     )
     assert train.returncode == 0, train.stderr[-3000:]
     log = train.stdout + train.stderr
-    assert "pc_success" in log or "eval/pc_success" in log or "Eval policy" in log
+    assert "Eval policy at step 4" in log
+    assert "aggregated:" in log and "'pc_success'" in log  # LeRobot's per-suite evaluation summary
     config = json.loads((out / "checkpoints" / "last" / "pretrained_model" / "config.json").read_text())
     assert config["type"] == "act_pcd" and config["obs_space"] == "pointcloud" and config["encoder"] == "pointnet"
 
