@@ -224,11 +224,15 @@ def camera_resolution(features: Mapping[str, object], obs_space: str, cameras: l
     cam = cameras[0]
     for key in (image_key(cam), depth_key(cam)):
         if key in features and prefix_of(key) in SPACE_SENSORS[obs_space]:
-            shape = _shape(features[key])
-            # policy features store images channel-first (3, H, W); dataset features (H, W, 3)
-            channel_first = key.startswith(IMAGE_PREFIX) and shape[0] == 3 and shape[-1] != 3
-            return list(shape[1:]) if channel_first else list(shape[:2])
+            return list(frame_size(key, features[key]))
     return []
+
+
+def frame_size(key: str, feature: object) -> tuple[int, int]:
+    """(height, width) of a colour or depth feature, channel-first (policy features) or channel-last (dataset)."""
+    shape = _shape(feature)
+    channel_first = key.startswith(IMAGE_PREFIX) and shape[0] == 3 and shape[-1] != 3
+    return (shape[1], shape[2]) if channel_first else (shape[0], shape[1])
 
 
 # ---- policy <-> env (or robot) compatibility ---------------------------------------------------------------

@@ -13,9 +13,9 @@ import tempfile
 from pathlib import Path
 
 from lerobot_obsbench.bench.results import by_kind, read_results
+from lerobot_obsbench.bench.runner import RESULTS_FILE
 from lerobot_obsbench.bench.units import PRETRAINED
 
-RESULTS_FILE = "results.jsonl"
 # What a checkpoint upload carries (LeRobot's own push uploads the same kinds of files).
 CHECKPOINT_PATTERNS = ["*.safetensors", "*.json", "*.md"]
 DATASET_PATTERNS = ["meta/*", "data/*", "videos/*", "images/*", "obsbench_*.json", "README.md"]

@@ -34,6 +34,7 @@ from lerobot_obsbench.schema import (
     SchemaError,
     cam2world_key,
     depth_key,
+    frame_size,
     image_key,
     intrinsics_key,
     validate_features,
@@ -51,7 +52,6 @@ class CameraScan:
 
     problems: dict[str, list[str]] = field(default_factory=lambda: defaultdict(list))
     notes: list[str] = field(default_factory=list)
-    frames: int = 0
     empty_frames: int = 0
 
 
@@ -69,14 +69,6 @@ def _episodes(flags: np.ndarray, episodes: np.ndarray, limit: int = 8) -> str:
     bad = sorted({int(e) for e in episodes[flags]})
     shown = ", ".join(str(e) for e in bad[:limit]) + (", ..." if len(bad) > limit else "")
     return f"episode{'s' if len(bad) > 1 else ''} {shown} ({len(bad)} of {len(np.unique(episodes))})"
-
-
-def _resolution(feature: dict) -> tuple[int, int]:
-    info = feature.get("info") or {}
-    if "video.height" in info:
-        return int(info["video.height"]), int(info["video.width"])
-    shape = feature["shape"]
-    return (int(shape[1]), int(shape[2])) if shape[0] == 3 and shape[-1] != 3 else (int(shape[0]), int(shape[1]))
 
 
 def scan_dataset(root: Path, features: dict, cameras: list[str], progress: bool = True) -> dict[str, CameraScan]:
@@ -102,7 +94,6 @@ def scan_dataset(root: Path, features: dict, cameras: list[str], progress: bool 
     episodes = np.concatenate(gathered.pop("episode_index"))
     data = {key: np.concatenate(parts) for key, parts in gathered.items()}
     for cam, scan in scans.items():
-        scan.frames = len(episodes)
         _check_depth(cam, features, data, episodes, scan)
         _check_intrinsics(cam, data, episodes, scan)
         _check_cam2world(cam, data, episodes, scan)
@@ -184,7 +175,7 @@ def _check_cam2world(cam: str, data: dict, episodes: np.ndarray, scan: CameraSca
 def _check_sizes(cam: str, features: dict, scan: CameraScan) -> None:
     colour, depth = image_key(cam), depth_key(cam)
     if colour in features and depth in features:
-        colour_hw, depth_hw = _resolution(features[colour]), _resolution(features[depth])
+        colour_hw, depth_hw = frame_size(colour, features[colour]), frame_size(depth, features[depth])
         if colour_hw != depth_hw:
             scan.problems["size"].append(
                 f"{colour} is {colour_hw[0]}x{colour_hw[1]} but {depth} is {depth_hw[0]}x{depth_hw[1]}: colour "

@@ -82,9 +82,14 @@ class ObsBenchEnvConfig(EnvConfig):
         }
 
 
+def _task_stem(task: str) -> str:
+    """`PickCube-v1` -> `PickCube`."""
+    return task.rsplit("-v", 1)[0].replace("-", "")
+
+
 def env_type_name(task: str) -> str:
     """`PickCube-v1` -> `obsbench_pickcube`: the task's own `--env.type`."""
-    return "obsbench_" + task.rsplit("-v", 1)[0].replace("-", "").lower()
+    return "obsbench_" + _task_stem(task).lower()
 
 
 def _named_post_init(self) -> None:
@@ -99,7 +104,7 @@ def _named_post_init(self) -> None:
 
 def _named_env(task: str) -> type:
     cls = make_dataclass(
-        "ObsBench" + task.rsplit("-v", 1)[0].replace("-", "") + "EnvConfig",
+        "ObsBench" + _task_stem(task) + "EnvConfig",
         [("task", str, field(default=task))],
         bases=(ObsBenchEnvConfig,),
         namespace={

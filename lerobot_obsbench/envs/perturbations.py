@@ -61,8 +61,8 @@ def parse_perturbation(text: str) -> Perturbation | None:
     kind, _, raw = str(text).partition(":")
     if kind not in KINDS or not raw:
         raise PerturbationError(
-            f"unknown perturbation {text!r}; write one of camera_yaw:DEG, camera_pitch:DEG, light:I, "
-            "background:R,G,B, noise:SPP (or none)"
+            f"unknown perturbation {text!r}; write one of {', '.join(form.split()[0] for form in FORMS.values())} "
+            "(or none)"
         )
     try:
         value = tuple(float(v) for v in raw.split(","))

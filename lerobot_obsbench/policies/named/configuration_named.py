@@ -77,11 +77,3 @@ def _make(type_name: str) -> type:
 
 NAMED_CONFIGS = {name: _make(name) for name in NAMED_POLICIES}
 globals().update({cls.__name__: cls for cls in NAMED_CONFIGS.values()})
-
-
-def named_type(policy: str, obs_space: str, encoder: str) -> str | None:
-    """The named type of (policy type, space, encoder), if there is one (e.g. for a model card)."""
-    for name, spec in NAMED_POLICIES.items():
-        if spec == (policy, obs_space, encoder):
-            return name
-    return None
