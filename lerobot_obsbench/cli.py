@@ -211,6 +211,7 @@ def train_command(items: list[str]) -> list[str]:
     data/<task> (what `obsbench demos` is told to write there); a missing one is refused naming that command."""
     from lerobot.envs.configs import EnvConfig
 
+    from lerobot_obsbench.envs.configuration import env_type_name
     from lerobot_obsbench.policies.named import NAMED_POLICIES
     from lerobot_obsbench.presets import preset_args
 
@@ -229,9 +230,11 @@ def train_command(items: list[str]) -> list[str]:
             "obsbench train: give policy=TYPE and env=TYPE, e.g. obsbench train policy=act_pcd env=obsbench_pickcube "
             f"(named policy types: {', '.join(NAMED_POLICIES)})"
         )
-    task = EnvConfig.get_choice_class(env)().task if env.startswith("obsbench") else values.get("env.task")
-    root = values.pop("dataset", None) or f"data/{env.removeprefix('obsbench_')}"
+    task = values.get("env.task") or getattr(EnvConfig.get_choice_class(env)(), "task", None)
+    root = values.pop("dataset", None) or (f"data/{env_type_name(task).removeprefix('obsbench_')}" if task else None)
     if not any(f.startswith("--dataset.root") for f in flags):
+        if root is None:
+            raise SystemExit(f"obsbench train: env={env} names no OBSBench task; give dataset=DIR")
         if not (Path(root) / "meta" / "info.json").is_file():
             raise FileNotFoundError(
                 f"no dataset at {root}: record it with `obsbench demos --task {task} --episodes 100 --out {root}` "

@@ -183,3 +183,9 @@ def test_train_front_end_speaks_the_brief_and_names_the_missing_dataset(tiny_dat
         f"no dataset at {tmp_path}: record it with `obsbench demos --task PickCube-v1 --episodes 100 --out "
         f"{tmp_path}`" in capsys.readouterr().err
     )
+    # the generic env type takes the task from env.task, and the default dataset from the task's name
+    assert main(["train", "--dry-run", "policy=act_pcd", "env=obsbench", "env.task=StackCube-v1"]) == 2
+    assert (
+        "no dataset at data/stackcube: record it with `obsbench demos --task StackCube-v1 --episodes 100 --out "
+        "data/stackcube`" in capsys.readouterr().err
+    )
