@@ -89,6 +89,40 @@ def pose_to_matrix(position: Tensor, quat: Tensor) -> Tensor:
     return out
 
 
+def box_pixel_window(
+    K: Tensor, cam2world: Tensor, box: Tensor | tuple | list, height: int, width: int
+) -> tuple[int, int, int, int] | None:
+    """Rows v0:v1 and columns u0:u1 of a (height, width) image outside which no pixel can unproject into the box
+    (xmin, xmax, ymin, ymax, zmin, zmax; world frame), for every camera of the batch (K (B, 3, 3), cam2world
+    (B, 4, 4)); None when the box reaches behind a camera (no such window).
+
+    With the box in front of the camera, the image of the box is the convex hull of its corners' images, and a
+    pixel's unprojected point projects back onto that pixel: the corners' bounding rectangle holds every pixel
+    the crop keeps.
+    """
+    bounds = torch.as_tensor(box, dtype=K.dtype, device=K.device).reshape(3, 2)
+    corners = torch.cartesian_prod(bounds[0], bounds[1], bounds[2])  # (8, 3)
+    cam = transform_points(corners.expand(len(K), 8, 3), invert_transform(cam2world.to(K.dtype)))
+    if not bool((cam[..., 2] > 1e-6).all()):
+        return None
+    u = K[:, None, 0, 0] * cam[..., 0] / cam[..., 2] + K[:, None, 0, 2]
+    v = K[:, None, 1, 1] * cam[..., 1] / cam[..., 2] + K[:, None, 1, 2]
+    # one pixel of margin against rounding; an empty window keeps one pixel (it will be cropped away)
+    u0 = min(max(int(torch.floor(u.min())) - 1, 0), width - 1)
+    v0 = min(max(int(torch.floor(v.min())) - 1, 0), height - 1)
+    u1 = max(min(int(torch.ceil(u.max())) + 2, width), u0 + 1)
+    v1 = max(min(int(torch.ceil(v.max())) + 2, height), v0 + 1)
+    return v0, v1, u0, u1
+
+
+def shift_intrinsics(K: Tensor, rows: int, columns: int) -> Tensor:
+    """Intrinsics (B, 3, 3) of the image cropped to start at row `rows`, column `columns`."""
+    shifted = K.clone()
+    shifted[:, 0, 2] -= columns
+    shifted[:, 1, 2] -= rows
+    return shifted
+
+
 def crop_mask(points: Tensor, mask: Tensor, box: Tensor | tuple | list) -> Tensor:
     """Mask of points (B, N, 3) inside an axis-aligned box (xmin, xmax, ymin, ymax, zmin, zmax): one box (6,) for
     the batch or one per cloud (B, 6)."""
@@ -100,11 +134,18 @@ def crop_mask(points: Tensor, mask: Tensor, box: Tensor | tuple | list) -> Tenso
 def pack(mask: Tensor, *values: Tensor) -> tuple[Tensor, ...]:
     """Move the masked entries of each (B, N, ...) tensor to the front, trimmed to the largest count.
 
-    Returns the packed tensors followed by the new mask (B, M); the relative order of kept entries is preserved.
+    Returns the packed tensors followed by the new mask (B, M); the relative order of kept entries is preserved,
+    and the slots after a cloud's own count hold its first unmasked entries, in order (a stable partition).
     """
     counts = mask.sum(dim=1)
     m = max(int(counts.max()) if mask.numel() else 0, 1)
-    order = torch.sort((~mask).to(torch.uint8), dim=1, stable=True).indices[:, :m]
+    # each entry's place in the stable partition, from two running counts: O(N), where a sort is O(N log N)
+    kept_before = mask.cumsum(dim=1) - 1
+    dropped_before = (~mask).cumsum(dim=1) - 1
+    destination = torch.where(mask, kept_before, counts[:, None] + dropped_before)
+    order = torch.empty_like(destination).scatter_(
+        1, destination, torch.arange(mask.shape[1], device=mask.device).expand_as(destination)
+    )[:, :m]
     packed = [gather(v, order) for v in values]
     new_mask = torch.arange(m, device=mask.device)[None] < counts[:, None]
     return (*packed, new_mask)
@@ -185,11 +226,17 @@ def _fps_cuda(xyz: Tensor, mask: Tensor, k: int) -> Tensor:
     return fps_triton.farthest_point_sample(xyz, mask, mask.to(torch.uint8).argmax(dim=1), k)
 
 
-def _fps_fpsample(xyz: Tensor, mask: Tensor, k: int) -> Tensor:
-    """Per-cloud FPS with `fpsample`'s exact C++ kernel (≈10x faster than a loop of tensor ops on CPU).
+# Below this many points the exact per-point loop is as fast as building QuickFPS's tree.
+QUICK_FPS_MIN_POINTS = 1024
 
-    Its bucket/KD-tree variants are faster still but do not honour the start index, so CPU and GPU would pick
-    different seeds for the same cloud.
+
+def _fps_fpsample(xyz: Tensor, mask: Tensor, k: int) -> Tensor:
+    """Per-cloud exact FPS with `fpsample`'s C++ kernels.
+
+    Clouds of QUICK_FPS_MIN_POINTS or more use QuickFPS (`bucket_fps_kdline_sampling`, 5-10x faster than the
+    per-point loop at 2-10k points): still exact — every seed is the point farthest from the seeds before it — but
+    fpsample 1.0 reads the start index in its tree's order, so its first seed is the point its KD-tree lists first
+    instead of the cloud's first point (the GPU paths' start): same rule, a different start.
     """
     xyz_np = xyz.detach().cpu().numpy()
     mask_np = mask.cpu().numpy()
@@ -199,9 +246,19 @@ def _fps_fpsample(xyz: Tensor, mask: Tensor, k: int) -> Tensor:
         if len(valid) <= k:  # every point is a seed: nothing to sample
             out[i, : len(valid)] = valid
             continue
-        picked = fpsample.fps_sampling(xyz_np[i, valid].astype(np.float32), k, start_idx=0)
+        points = np.ascontiguousarray(xyz_np[i, valid], dtype=np.float32)
+        if len(valid) >= QUICK_FPS_MIN_POINTS:
+            picked = fpsample.bucket_fps_kdline_sampling(points, k, h=quick_fps_height(len(valid)), start_idx=0)
+        else:
+            picked = fpsample.fps_sampling(points, k, start_idx=0)
         out[i] = valid[picked.astype(np.int64)]
     return torch.from_numpy(out).to(xyz.device)
+
+
+def quick_fps_height(n_points: int) -> int:
+    """QuickFPS tree height (buckets of 2**h points): fpsample's advice, 5 for medium clouds and 7 for large
+    ones, which measured fastest here too (benchmarks/bench_latency.py)."""
+    return 5 if n_points < 16384 else 7
 
 
 def farthest_point_sample(xyz: Tensor, mask: Tensor, k: int) -> tuple[Tensor, Tensor]:
@@ -226,14 +283,15 @@ def farthest_point_sample(xyz: Tensor, mask: Tensor, k: int) -> tuple[Tensor, Te
 
 
 def _knn_kdtree(query: Tensor, points: Tensor, mask: Tensor, k: int) -> Tensor:
-    """Per-cloud kNN with scipy's KD-tree (≈10x faster than a dense distance matrix on CPU)."""
+    """Per-cloud kNN with scipy's KD-tree (≈10x faster than a dense distance matrix on CPU), queries spread over
+    every core (an exact search: the result does not depend on the number of workers)."""
     query_np, points_np, mask_np = query.detach().numpy(), points.detach().numpy(), mask.numpy()
     out = np.zeros(query.shape[:2] + (k,), dtype=np.int64)
     for i in range(query.shape[0]):
         valid = np.flatnonzero(mask_np[i])
         if len(valid) == 0:
             continue
-        _, nearest = cKDTree(points_np[i, valid]).query(query_np[i], k=k)
+        _, nearest = cKDTree(points_np[i, valid]).query(query_np[i], k=k, workers=-1)
         nearest = nearest.reshape(len(query_np[i]), k)
         missing = nearest >= len(valid)  # fewer than k points: scipy pads with n
         nearest[missing] = np.broadcast_to(nearest[:, :1], nearest.shape)[missing]

@@ -197,22 +197,32 @@ class ObservationAdapter(nn.Module):
         return torch.stack(per_camera, dim=1)
 
     def _pointcloud(self, batch: dict, ee_pose: Tensor | None) -> PointCloud:
+        jitter = self.workspace_jitter if self.training else 0.0
+        # only the pixels that can land in the box (widened by the jitter) are unprojected: the same points
+        widest = [bound + (jitter if i % 2 else -jitter) for i, bound in enumerate(self.workspace)]
         xyz, rgb, valid = [], [], []
         for cam in self.cameras:
-            points, ok = self._world_points(batch, cam)
+            depth_m = self._depth_m(batch, cam)
             colour = self._rgb(batch, cam)
-            if colour.shape[-2:] != points.shape[1:3]:
+            if colour.shape[-2:] != depth_m.shape[1:]:
                 raise SchemaError(
                     f"{image_key(cam)} is {tuple(colour.shape[-2:])} but {depth_key(cam)} is "
-                    f"{tuple(points.shape[1:3])}: point clouds need depth aligned to colour at the same resolution."
+                    f"{tuple(depth_m.shape[1:])}: point clouds need depth aligned to colour at the same resolution."
                 )
+            K, cam2world = self._camera(batch, cam)
+            window = geometry.box_pixel_window(K, cam2world, widest, *depth_m.shape[1:])
+            if window is not None:
+                v0, v1, u0, u1 = window
+                depth_m, colour = depth_m[:, v0:v1, u0:u1], colour[..., v0:v1, u0:u1]
+                K = geometry.shift_intrinsics(K, v0, u0)
+            points = geometry.transform_points(geometry.unproject_depth(depth_m, K), cam2world)
             xyz.append(points.flatten(1, 2))
             rgb.append(colour.permute(0, 2, 3, 1).flatten(1, 2) * 2 - 1)
-            valid.append(ok.flatten(1))
+            valid.append((depth_m > 0).flatten(1))
         xyz, rgb, valid = torch.cat(xyz, 1), torch.cat(rgb, 1), torch.cat(valid, 1)
         box = torch.tensor(self.workspace, dtype=xyz.dtype, device=xyz.device)
-        if self.training and self.workspace_jitter > 0:  # each bound moves by up to ±jitter, per sample
-            box = box + (torch.rand(len(xyz), 6, device=xyz.device, dtype=xyz.dtype) * 2 - 1) * self.workspace_jitter
+        if jitter > 0:  # each bound moves by up to ±jitter, per sample
+            box = box + (torch.rand(len(xyz), 6, device=xyz.device, dtype=xyz.dtype) * 2 - 1) * jitter
         valid = geometry.crop_mask(xyz, valid, box)
         empty = ~valid.any(dim=1)
         self._count_empty(int(empty.sum()), len(empty))

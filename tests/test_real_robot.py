@@ -147,6 +147,13 @@ def test_record_train_and_roll_out_on_the_fake_bimanual_robot(tmp_path, syntheti
         for r in result["per_episode"]
     )
     assert len(fake_hardware.motor_state(PORTS["follower_left"]).goals) > goals_before + 4
+    assert all(r["step_ms_median"] > 0 and r["achieved_hz"] > 0 for r in result["per_episode"])
+    # asynchronous inference: chunks computed off the loop, the arm acting on every step
+    rollout_cfg.async_inference = True
+    rollout_cfg.out = str(tmp_path / "rollouts_async")
+    result = rollout(make_robot_from_config(robot_cfg), rollout_cfg, operator)
+    assert all(r["chunks"] >= 1 and r["steps"] >= 2 for r in result["per_episode"])
+    rollout_cfg.async_inference = False
 
     # a checkpoint trained on 80x60 frames refuses a camera that now gives 40x30
     robot_cfg.cameras = {"top": RealSenseRGBDCameraConfig(playback_file=str(bag), width=W, height=H, downsample=2)}

@@ -1,16 +1,19 @@
 """Run a trained checkpoint on a real robot for N episodes, the operator judging each (README: Real robot).
 
 Per episode: the operator starts it, the policy acts at `fps` for at most `episode_time_s` (ACT checkpoints keep
-their temporal ensembling: one new chunk per step, averaged), the arm returns to its rest pose (the joint
+their temporal ensembling: one new chunk per step, averaged; or, with `async_inference`, the next chunk is
+computed while the arm follows the current one — `robots.realtime`), the arm returns to its rest pose (the joint
 positions at connection), and the operator marks success or failure. The robot's own `max_relative_target`
 limits every commanded step. Keys: right arrow ends the episode early, Escape aborts it (the arm returns to rest
 and no further episode starts). Writes one video per episode and the same results JSON as `obsbench eval`
-(success rate with its Wilson 95% interval).
+(success rate with its Wilson 95% interval), with each episode's measured step and policy times; a warning
+names the options when the policy could not keep the rate.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -18,14 +21,18 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from lerobot.policies.act.modeling_act import ACTPolicy
 from lerobot.robots import RobotConfig
 
 from lerobot_obsbench.policies.loading import load_policy
 from lerobot_obsbench.robots.checks import RobotSetupError, require_calibrated
 from lerobot_obsbench.robots.frames import action_dict, dataset_features, motor_keys, observation_frame
+from lerobot_obsbench.robots.realtime import AsyncChunks, StepTimer
 from lerobot_obsbench.robots.tasks import real_task
 from lerobot_obsbench.schema import ACTION_KEY, DEPTH_PREFIX, IMAGE_PREFIX, STATE_KEY, frame_to_env_observation
 from lerobot_obsbench.stats import wilson_interval
+
+logger = logging.getLogger(__name__)
 
 
 @dataclass
@@ -43,6 +50,10 @@ class RolloutConfig:
     # Seconds to move back to the rest pose after each episode.
     rest_time_s: float = 3.0
     device: str = "cpu"
+    # Compute the next action chunk in a background thread while the arm executes the current one (ACT
+    # checkpoints; replaces temporal ensembling): a policy slower than 1 / fps then acts on a slightly older plan
+    # instead of stalling the arm. Each episode's record reports the step times either way.
+    async_inference: bool = False
     # Where the results JSON and the per-episode videos go.
     out: str = "outputs/rollouts"
 
@@ -112,6 +123,13 @@ def to_batch(frame: dict) -> dict:
     return preprocess_observation(batched(frame_to_env_observation(frame)))
 
 
+def infer_chunk(policy, post, batch: dict) -> np.ndarray:
+    """The policy's next action chunk (n, action_dim), unnormalised, for asynchronous inference."""
+    with torch.inference_mode():
+        chunk = policy.predict_action_chunk(batch)  # (1, n, action_dim)
+        return np.stack([post(chunk[:, i])[0].cpu().numpy() for i in range(chunk.shape[1])])
+
+
 def return_to_rest(robot, rest: dict, seconds: float, fps: int) -> None:
     """Move the joints linearly from where they are to `rest` over `seconds` (max_relative_target still applies)."""
     from lerobot.utils.robot_utils import precise_sleep
@@ -141,6 +159,11 @@ def rollout(robot, config: RolloutConfig, operator: Operator | None = None) -> d
     try:
         require_calibrated(robot, "robot")
         check_policy_fits_robot(policy.config, robot)
+        if config.async_inference and not isinstance(policy, ACTPolicy):
+            raise RobotSetupError(
+                f"--async_inference=true needs an ACT checkpoint (obs_act, act_*); {config.policy_path} is a "
+                f"{policy.config.type} policy, whose action queue already spans {policy.config.n_action_steps} steps."
+            )
         motors = motor_keys(robot)
         first = robot.get_observation()
         rest = {m: first[m] for m in motors}
@@ -151,18 +174,30 @@ def rollout(robot, config: RolloutConfig, operator: Operator | None = None) -> d
                 break
             policy.reset()
             frames, steps, aborted = [], 0, False
+            timer = StepTimer(config.fps)
+            chunks = AsyncChunks(lambda batch: infer_chunk(policy, post, batch)) if config.async_inference else None
             start = time.perf_counter()
-            while time.perf_counter() - start < config.episode_time_s and not events["exit_early"]:
-                t0 = time.perf_counter()
-                frame = observation_frame(robot.get_observation(), motors)
-                if video_camera is not None:
-                    frames.append(frame[video_camera])
-                batch = pre(to_batch({k: frame[k] for k in keys}))
-                with torch.inference_mode():
-                    action = post(policy.select_action(batch))
-                robot.send_action(action_dict(action[0].cpu().numpy(), motors))
-                steps += 1
-                precise_sleep(max(1.0 / config.fps - (time.perf_counter() - t0), 0.0))
+            try:
+                while time.perf_counter() - start < config.episode_time_s and not events["exit_early"]:
+                    t0 = time.perf_counter()
+                    frame = observation_frame(robot.get_observation(), motors)
+                    if video_camera is not None:
+                        frames.append(frame[video_camera])
+                    t_policy = time.perf_counter()
+                    batch = pre(to_batch({k: frame[k] for k in keys}))
+                    if chunks is not None:
+                        action = chunks.action(steps, batch)
+                    else:
+                        with torch.inference_mode():
+                            action = post(policy.select_action(batch))[0].cpu().numpy()
+                    policy_s = time.perf_counter() - t_policy
+                    robot.send_action(action_dict(action, motors))
+                    steps += 1
+                    timer.record(time.perf_counter() - t0, policy_s)
+                    precise_sleep(max(1.0 / config.fps - (time.perf_counter() - t0), 0.0))
+            finally:
+                if chunks is not None:
+                    chunks.close()
             aborted = events["stop_recording"]
             events["exit_early"] = False
             seconds = time.perf_counter() - start
@@ -180,8 +215,12 @@ def rollout(robot, config: RolloutConfig, operator: Operator | None = None) -> d
                     "seconds": round(seconds, 2),
                     "aborted": aborted,
                     "video": str(video) if video else None,
+                    **timer.summary(),
+                    **({"starved_steps": chunks.starved_steps, "chunks": chunks.chunks_done} if chunks else {}),
                 }
             )
+            if message := timer.warning(config.async_inference):
+                logger.warning(f"episode {episode + 1}: {message}")
             if aborted:
                 break
     finally:
