@@ -9,6 +9,7 @@ Training and stock evaluation stay with LeRobot (`lerobot-train --policy.type=ob
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -98,6 +99,57 @@ def cmd_import(args: argparse.Namespace) -> int:
         asset_dir=args.asset_dir,
     )
     print(f"{args.out}: {len(info['episode_ids'])} {info['task']} episodes imported from {args.h5}")
+    return 0
+
+
+def _text_encoder(weights: str | None):
+    from lerobot_obsbench.rlbench.text import load_clip_text_encoder
+
+    return load_clip_text_encoder(weights) if weights else None
+
+
+def cmd_import_rlbench(args: argparse.Namespace) -> int:
+    from lerobot_obsbench.datasets.rlbench_import import import_rlbench
+
+    info = import_rlbench(
+        args.data,
+        args.out,
+        task=args.task,
+        cameras=tuple(args.cameras),
+        text_encoder=_text_encoder(args.clip_weights),
+        max_episodes=args.max_episodes,
+        quaternion=args.quaternion,
+    )
+    skipped = f"; {len(info['skipped'])} unreadable episodes skipped (listed in obsbench_import.json)"
+    print(
+        f"{args.out}: {len(info['episodes'])} {info['task']} episodes imported from {args.data}"
+        + (skipped if info["skipped"] else "")
+    )
+    return 0
+
+
+def cmd_eval_rlbench(args: argparse.Namespace) -> int:
+    from lerobot_obsbench.policies.loading import load_policy
+    from lerobot_obsbench.rlbench.evaluate import CameraView, CheckpointPolicy, evaluate_rlbench, require_rlbench
+    from lerobot_obsbench.rlbench.tasks import rlbench_task
+
+    task = rlbench_task(args.task)
+    view = None
+    if args.camera_view:
+        axis, _, rest = args.camera_view.partition(":")
+        degrees, _, shift = rest.partition(",")
+        view = CameraView(axis, float(degrees), float(shift or 0.0))
+    require_rlbench()  # before anything loads
+    policy, pre, post = load_policy(args.policy_path, args.device)
+    runner = CheckpointPolicy(
+        policy, pre, post, task, policy.config.cameras, args.quaternion, _text_encoder(args.clip_weights)
+    )
+    result = evaluate_rlbench(runner, task, args.data, args.episodes, args.max_steps, camera_view=view)
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(result, indent=2) + "\n")
+    lo, hi = result["ci95"]
+    print(f"{task.name}: success {result['successes']}/{result['episodes']} (95% CI {lo:.1%}-{hi:.1%})")
     return 0
 
 
@@ -466,6 +518,39 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--asset-dir", default=None, help="ManiSkill asset directory, for tasks with assets (TurnFaucet)")
     p.set_defaults(func=cmd_import)
 
+    p = sub.add_parser(
+        "import-rlbench",
+        help="convert PerAct-format RLBench demonstrations (one task folder of a split) into the schema",
+    )
+    p.add_argument("--data", type=Path, required=True, help="the task's folder, e.g. data/rlbench/train/open_drawer")
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--task", default=None, help="RLBench task name (default: the folder's name)")
+    p.add_argument("--cameras", nargs="+", default=["front"], help="front (the paper), left_shoulder, wrist, ...")
+    p.add_argument("--max-episodes", type=positive_int, default=None)
+    p.add_argument(
+        "--clip-weights",
+        default=None,
+        help="language goals as observation.environment_state: a local CLIP ViT-B/16 checkpoint, or 'openai' "
+        "to download it (default: no language goal)",
+    )
+    p.add_argument("--quaternion", default="pcm_compat", choices=["pcm_compat", "xyzw"])
+    p.set_defaults(func=cmd_import_rlbench)
+
+    p = sub.add_parser(
+        "eval-rlbench", help="success rate of a checkpoint on an RLBench task's test episodes (needs CoppeliaSim)"
+    )
+    p.add_argument("--policy.path", dest="policy_path", required=True, help="pretrained_model directory")
+    p.add_argument("--task", required=True)
+    p.add_argument("--data", type=Path, required=True, help="the raw test split folder, e.g. data/rlbench/test")
+    p.add_argument("--episodes", type=positive_int, default=25)
+    p.add_argument("--max-steps", type=positive_int, default=200)
+    p.add_argument("--camera-view", default=None, help="AXIS:DEGREES[,SHIFT_M], e.g. y:-5,0.1 or z:-10")
+    p.add_argument("--clip-weights", default=None, help="the CLIP checkpoint the dataset was imported with")
+    p.add_argument("--quaternion", default="pcm_compat", choices=["pcm_compat", "xyzw"])
+    p.add_argument("--policy.device", dest="device", default="cpu")
+    p.add_argument("--out", type=Path, default=None, help="write the JSON result here")
+    p.set_defaults(func=cmd_eval_rlbench)
+
     p = sub.add_parser("eval", help="success rate of a checkpoint on the task's fixed held-out seeds 0..N-1")
     p.add_argument("--policy.path", dest="policy_path", required=True, help="pretrained_model directory")
     p.add_argument("--env.task", dest="task", required=True)
@@ -684,6 +769,10 @@ def main(argv: list[str] | None = None) -> int:
     from lerobot_obsbench.envs.perturbations import PerturbationError
     from lerobot_obsbench.envs.task import TaskError
     from lerobot_obsbench.locks import OutputLockedError
+    from lerobot_obsbench.rlbench.evaluate import RLBenchUnavailable
+    from lerobot_obsbench.rlbench.format import RLBenchFormatError
+    from lerobot_obsbench.rlbench.tasks import RLBenchTaskError
+    from lerobot_obsbench.rlbench.text import TextEncoderError
 
     try:
         return args.func(args)
@@ -696,6 +785,10 @@ def main(argv: list[str] | None = None) -> int:
         OutputLockedError,
         PushError,
         PerturbationError,
+        RLBenchUnavailable,
+        RLBenchFormatError,
+        RLBenchTaskError,
+        TextEncoderError,
     ) as err:
         print(f"obsbench {args.command}: error: {err}", file=sys.stderr)
         return 2

@@ -88,7 +88,7 @@ def _import_locked(h5_path, out, task, episodes, image_size, cameras, control_mo
                 frames.append({**env.schema_frame(env.raw_observation()), ACTION_KEY: action})
             save_episode_file(target, {k: np.stack([fr[k] for fr in frames]) for k in frames[0]})
     env.close()
-    assemble(out, files, task, repo_id=repo_id or f"local/obsbench_{task}_imported")
+    assemble(out, files, task_spec(task).description, repo_id=repo_id or f"local/obsbench_{task}_imported")
     info = {
         "task": task,
         "source": str(h5_path),

@@ -95,8 +95,16 @@ def save_episode_file(path: Path, frames: dict[str, np.ndarray]) -> None:
     os.replace(tmp, path)
 
 
-def assemble(out: Path, episode_files: list[Path], task: str, repo_id: str, fps: int = CONTROL_FPS) -> None:
-    """(Re)write the LeRobotDataset in `out` from staged episode files, in the given order."""
+def assemble(
+    out: Path,
+    episode_files: list[Path],
+    task_text: str | list[str],
+    repo_id: str,
+    fps: int = CONTROL_FPS,
+    robot_type: str = "panda",
+) -> None:
+    """(Re)write the LeRobotDataset in `out` from staged episode files, in the given order; `task_text` is
+    LeRobot's task string, one for all episodes or one per episode."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     for name in DATASET_ENTRIES:  # leftovers of an interrupted assembly
@@ -106,12 +114,12 @@ def assemble(out: Path, episode_files: list[Path], task: str, repo_id: str, fps:
     tmp_root = out / ".assembling"
     episodes = [dict(np.load(f)) for f in episode_files]
     ds = LeRobotDataset.create(
-        repo_id=repo_id, fps=fps, features=_features(episodes[0]), root=tmp_root, robot_type="panda", use_videos=True
+        repo_id=repo_id, fps=fps, features=_features(episodes[0]), root=tmp_root, robot_type=robot_type, use_videos=True
     )
-    description = task_spec(task).description
-    for ep in tqdm(episodes, desc="writing dataset", unit="ep"):
+    texts = [task_text] * len(episodes) if isinstance(task_text, str) else task_text
+    for ep, text in tqdm(zip(episodes, texts, strict=True), desc="writing dataset", unit="ep", total=len(episodes)):
         for t in range(len(ep[ACTION_KEY])):
-            ds.add_frame({**{k: v[t] for k, v in ep.items()}, "task": description})
+            ds.add_frame({**{k: v[t] for k, v in ep.items()}, "task": text})
         ds.save_episode()
     ds.finalize()
     for entry in tmp_root.iterdir():
@@ -195,7 +203,9 @@ def _record_locked(spec, episodes, out, image_size, cameras, seed_start, max_att
         bar.close()
         env.close()
     seeds = sorted(successes)[:episodes]
-    assemble(out, [staging / f"seed_{s}.npz" for s in seeds], task, repo_id=repo_id or f"local/obsbench_{task}")
+    assemble(
+        out, [staging / f"seed_{s}.npz" for s in seeds], spec.description, repo_id=repo_id or f"local/obsbench_{task}"
+    )
     tried = len(attempted)
     info = {
         "task": task,

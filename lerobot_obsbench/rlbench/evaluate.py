@@ -1,0 +1,230 @@
+"""Evaluate a checkpoint in RLBench, following the paper's protocol as its code runs it (`obsbench eval-rlbench`).
+
+Needs CoppeliaSim 4.1, PyRep and RLBench's PerAct fork (none is on PyPI) and an X display; `require_rlbench`
+names whatever is missing. Protocol:
+- test episodes 0..N-1 (25 in the paper) of the raw `test` split, in order: each is loaded from disk, its
+  recorded variation set and the scene reset to the demo (`reset_to_demo`, which restores its random seed);
+- the arm moves by end-effector pose planning (`EndEffectorPoseViaPlanning`, absolute, world frame) with a
+  discrete gripper; at most `max_steps` (200) steps;
+- at step 0 a planning failure (IKError, ConfigurationPathError, InvalidActionError) is retried with the next
+  entries of the predicted chunk, up to 20; later it ends the episode as a failure;
+- success is reward 1 at any step; the rate is successes / episodes;
+- camera-view perturbation: the front camera's pose is left-multiplied by a rotation about world y or z
+  (the y rotations also move it by `shift` metres in x and z).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from lerobot_obsbench.rlbench.format import camera_views, decode_action, encode_pose, low_dim
+from lerobot_obsbench.rlbench.tasks import RLBenchTask
+from lerobot_obsbench.schema import (
+    ENV_STATE_KEY,
+    STATE_KEY,
+    cam2world_key,
+    depth_key,
+    frame_to_env_observation,
+    image_key,
+    intrinsics_key,
+)
+from lerobot_obsbench.stats import wilson_interval
+
+STEP0_RETRIES = 20
+MAX_STEPS = 200
+PAPER_EPISODES = 25
+
+
+class RLBenchUnavailable(RuntimeError):
+    pass
+
+
+def require_rlbench() -> None:
+    """Raise RLBenchUnavailable naming every missing piece of the simulator stack."""
+    problems = []
+    root = os.environ.get("COPPELIASIM_ROOT")
+    if not root or not Path(root).is_dir():
+        problems.append(
+            "COPPELIASIM_ROOT is not set to a CoppeliaSim 4.1 folder (CoppeliaSim_Edu_V4_1_0_Ubuntu20_04; export "
+            "COPPELIASIM_ROOT, and add it to LD_LIBRARY_PATH and QT_QPA_PLATFORM_PLUGIN_PATH)"
+        )
+    try:
+        import pyrep.backend  # noqa: F401  (PyPI's unrelated `pyrep` has no backend)
+    except ImportError:
+        problems.append(
+            "PyRep is not installed (git clone https://github.com/stepjam/PyRep; pip install .; PyPI's `pyrep` is an "
+            "unrelated package)"
+        )
+    try:
+        import rlbench  # noqa: F401
+    except ImportError:
+        problems.append(
+            "RLBench is not installed (the PerAct fork the paper uses: git clone -b peract "
+            "https://github.com/MohitShridhar/RLBench; pip install .; it is not on PyPI)"
+        )
+    if not os.environ.get("DISPLAY"):
+        problems.append(
+            "no X display: CoppeliaSim renders through one even headless (e.g. Xvfb :99 -screen 0 1024x768x24 "
+            "+extension GLX +render -noreset & export DISPLAY=:99)"
+        )
+    if problems:
+        raise RLBenchUnavailable("RLBench evaluation needs " + "; ".join(problems) + ".")
+
+
+@dataclass(frozen=True)
+class CameraView:
+    """A camera-view perturbation: rotate the front camera about world `axis` (y or z) by `degrees`."""
+
+    axis: str
+    degrees: float
+    shift: float = 0.0  # metres added to the camera's x and z (the paper moves it with the y rotations)
+
+    def apply(self, matrix: np.ndarray) -> np.ndarray:
+        from scipy.spatial.transform import Rotation
+
+        if self.axis not in ("y", "z"):
+            raise ValueError(f"camera view axis must be y or z; got {self.axis!r}")
+        turn = np.eye(4)
+        turn[:3, :3] = Rotation.from_euler(self.axis, self.degrees, degrees=True).as_matrix()
+        moved = turn @ matrix
+        moved[[0, 2], 3] += self.shift
+        return moved
+
+
+class CheckpointPolicy:
+    """A LeRobot policy (pre/post processors included) driven by RLBench observations: schema frame -> 11-d
+    action -> RLBench's 9-d action. At step 0 it also returns the rest of the predicted chunk, for retries."""
+
+    def __init__(self, policy, pre, post, task: RLBenchTask, cameras, quaternion: str, text_encoder=None):
+        self.policy, self.pre, self.post, self.task = policy, pre, post, task
+        self.cameras, self.quaternion, self.text_encoder = list(cameras), quaternion, text_encoder
+        self.goal: np.ndarray | None = None
+        self.steps = 0
+
+    def reset(self, description: str) -> None:
+        self.policy.reset()
+        self.steps = 0
+        self.goal = self.text_encoder.encode([description])[0] if self.text_encoder is not None else None
+
+    def frame(self, obs) -> dict[str, np.ndarray]:
+        frame = {}
+        for camera in self.cameras:
+            view = camera_views(getattr(obs, f"{camera}_rgb"), getattr(obs, f"{camera}_depth"), obs.misc, camera)
+            frame[image_key(camera)] = view["rgb"]
+            frame[depth_key(camera)] = view["depth"]
+            frame[intrinsics_key(camera)] = view["K"].astype(np.float32)
+            frame[cam2world_key(camera)] = view["cam2world"].astype(np.float32)
+        pose, gripper, ignore = low_dim(obs)
+        frame[STATE_KEY] = encode_pose(
+            pose, gripper, ignore, self.task.location_low, self.task.location_high, self.quaternion
+        )
+        if self.goal is not None:
+            frame[ENV_STATE_KEY] = self.goal
+        return frame
+
+    def act(self, obs) -> np.ndarray:
+        """RLBench actions (n, 9): the one to take first, then (step 0 only) the alternatives for retries."""
+        import torch
+        from lerobot.envs.utils import preprocess_observation
+
+        observation = frame_to_env_observation(self.frame(obs))
+        batch = self.pre(preprocess_observation(_batched(observation)))
+        with torch.inference_mode():
+            actions = [self.post(self.policy.select_action(batch))[0].cpu().numpy()]
+            if self.steps == 0 and hasattr(self.policy, "predict_action_chunk"):
+                chunk = self.policy.predict_action_chunk(batch)
+                actions += [self.post(chunk[:, i])[0].cpu().numpy() for i in range(1, chunk.shape[1])]
+        self.steps += 1
+        return decode_action(np.stack(actions), self.task.location_low, self.task.location_high, self.quaternion)
+
+
+def _batched(value):
+    return {k: _batched(v) for k, v in value.items()} if isinstance(value, dict) else np.expand_dims(value, 0)
+
+
+def evaluate_rlbench(
+    policy,
+    task: RLBenchTask,
+    data_root: Path,
+    episodes: int = PAPER_EPISODES,
+    max_steps: int = MAX_STEPS,
+    step0_retries: int = STEP0_RETRIES,
+    camera_view: CameraView | None = None,
+    headless: bool = True,
+) -> dict:
+    """Run the protocol (module docstring) with `policy` (`reset(description)`, `act(obs) -> (n, 9)`)."""
+    require_rlbench()
+    from pyrep.errors import ConfigurationPathError, IKError
+    from rlbench.action_modes.action_mode import MoveArmThenGripper
+    from rlbench.action_modes.arm_action_modes import EndEffectorPoseViaPlanning
+    from rlbench.action_modes.gripper_action_modes import Discrete
+    from rlbench.backend.exceptions import InvalidActionError
+    from rlbench.backend.utils import task_file_to_task_class
+    from rlbench.environment import Environment
+    from rlbench.observation_config import ObservationConfig
+
+    planning_errors = (IKError, ConfigurationPathError, InvalidActionError)
+    env = Environment(
+        action_mode=MoveArmThenGripper(EndEffectorPoseViaPlanning(), Discrete()),
+        dataset_root=str(data_root),
+        obs_config=ObservationConfig(),
+        headless=headless,
+    )
+    env.launch()
+    records = []
+    try:
+        task_env = env.get_task(task_file_to_task_class(task.name))
+        if camera_view is not None:
+            camera = task_env._scene._cam_front  # RLBench exposes the scene's cameras only privately
+            camera.set_matrix(camera_view.apply(camera.get_matrix()))
+        for episode in range(episodes):
+            task_env.set_variation(-1)
+            (demo,) = task_env.get_demos(1, live_demos=False, random_selection=False, from_episode_number=episode)
+            task_env.set_variation(demo.variation_number)
+            descriptions, obs = task_env.reset_to_demo(demo)
+            policy.reset(descriptions[0])
+            success, steps, failure = False, 0, None
+            while steps < max_steps and not success:
+                candidates = policy.act(obs)
+                tries = candidates[:step0_retries] if steps == 0 else candidates[:1]
+                for action in tries:
+                    try:
+                        obs, reward, terminate = task_env.step(action)
+                        failure = None
+                        break
+                    except planning_errors as error:
+                        failure = f"{type(error).__name__} at step {steps}: {error}"
+                if failure is not None:
+                    break
+                steps += 1
+                success = reward == 1
+                if terminate:
+                    break
+            records.append(
+                {"episode": episode, "variation": int(demo.variation_number), "success": success, "steps": steps}
+                | ({"failure": failure} if failure else {})
+            )
+    finally:
+        env.shutdown()
+    successes = sum(r["success"] for r in records)
+    low, high = wilson_interval(successes, len(records)) if records else (0.0, 1.0)
+    return {
+        "task": task.name,
+        "episodes": len(records),
+        "successes": successes,
+        "success_rate": round(successes / len(records), 4) if records else None,
+        "ci95": [round(low, 4), round(high, 4)],
+        "max_steps": max_steps,
+        "camera_view": None if camera_view is None else camera_view.__dict__,
+        "per_episode": records,
+    }
+
+
+def write_results(result: dict, out: Path) -> None:
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=2) + "\n")
