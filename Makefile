@@ -46,6 +46,7 @@ bench: $(STAMP)
 	$(BIN)/python -m benchmarks.bench_env
 	$(BIN)/python -m benchmarks.bench_encoders
 	$(BIN)/python -m benchmarks.bench_recording
+	$(BIN)/python -m benchmarks.bench_latency --baseline ca85b22
 
 clean:
 	rm -rf outputs .pytest_cache
