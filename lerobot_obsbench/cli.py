@@ -9,12 +9,11 @@ Training and stock evaluation stay with LeRobot (`lerobot-train --policy.type=ob
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 from lerobot_obsbench import __version__
-from lerobot_obsbench.schema import OBS_SPACES, POLICY_TYPES, SchemaError
+from lerobot_obsbench.schema import OBS_SPACES, POLICY_TYPES, QUATERNION_MODES, SchemaError
 
 
 def cmd_encoders(args: argparse.Namespace) -> int:
@@ -129,6 +128,7 @@ def cmd_import_rlbench(args: argparse.Namespace) -> int:
 
 
 def cmd_eval_rlbench(args: argparse.Namespace) -> int:
+    from lerobot_obsbench.envs.evaluate import write_result
     from lerobot_obsbench.policies.loading import load_policy
     from lerobot_obsbench.rlbench.evaluate import CameraView, CheckpointPolicy, evaluate_rlbench, require_rlbench
     from lerobot_obsbench.rlbench.tasks import rlbench_task
@@ -145,9 +145,7 @@ def cmd_eval_rlbench(args: argparse.Namespace) -> int:
         policy, pre, post, task, policy.config.cameras, args.quaternion, _text_encoder(args.clip_weights)
     )
     result = evaluate_rlbench(runner, task, args.data, args.episodes, args.max_steps, camera_view=view)
-    if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(result, indent=2) + "\n")
+    write_result(result, args.out)
     lo, hi = result["ci95"]
     print(f"{task.name}: success {result['successes']}/{result['episodes']} (95% CI {lo:.1%}-{hi:.1%})")
     return 0
@@ -533,7 +531,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="language goals as observation.environment_state: a local CLIP ViT-B/16 checkpoint, or 'openai' "
         "to download it (default: no language goal)",
     )
-    p.add_argument("--quaternion", default="pcm_compat", choices=["pcm_compat", "xyzw"])
+    p.add_argument("--quaternion", default="pcm_compat", choices=QUATERNION_MODES)
     p.set_defaults(func=cmd_import_rlbench)
 
     p = sub.add_parser(
@@ -546,7 +544,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-steps", type=positive_int, default=200)
     p.add_argument("--camera-view", default=None, help="AXIS:DEGREES[,SHIFT_M], e.g. y:-5,0.1 or z:-10")
     p.add_argument("--clip-weights", default=None, help="the CLIP checkpoint the dataset was imported with")
-    p.add_argument("--quaternion", default="pcm_compat", choices=["pcm_compat", "xyzw"])
+    p.add_argument("--quaternion", default="pcm_compat", choices=QUATERNION_MODES)
     p.add_argument("--policy.device", dest="device", default="cpu")
     p.add_argument("--out", type=Path, default=None, help="write the JSON result here")
     p.set_defaults(func=cmd_eval_rlbench)

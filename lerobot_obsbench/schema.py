@@ -50,6 +50,8 @@ DEPTH_NORMALIZATIONS = ("clip", "official")
 # official code's ("official": a random point per voxel also at evaluation, points shuffled in training so FPS
 # starts anywhere, tokenizer BatchNorm as the official code's).
 POINT_PIPELINES = ("plugin", "official")
+# How an RLBench [qx, qy, qz, qw] becomes a rotation: as the paper's code reads it (as w, x, y, z), or truly.
+QUATERNION_MODES = ("pcm_compat", "xyzw")
 
 STATE_KEY = OBS_STATE
 ENV_STATE_KEY = OBS_ENV_STATE

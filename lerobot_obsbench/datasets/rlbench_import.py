@@ -24,7 +24,6 @@ from lerobot_obsbench.datasets.recording import STAGING, TMP_SUFFIX, assemble, s
 from lerobot_obsbench.locks import exclusive_output
 from lerobot_obsbench.rlbench.format import (
     ACTION_SIZE,
-    QUATERNION_MODES,
     RLBenchFormatError,
     camera_frame,
     encode_pose,
@@ -37,6 +36,7 @@ from lerobot_obsbench.rlbench.text import TextEncoder
 from lerobot_obsbench.schema import (
     ACTION_KEY,
     ENV_STATE_KEY,
+    QUATERNION_MODES,
     STATE_KEY,
     cam2world_key,
     check_choice,

@@ -11,9 +11,23 @@ from lerobot_obsbench.schema import (
     cameras_in,
     check_compatibility,
     depth_key,
+    frame_to_env_observation,
     image_key,
     unpack_passthrough,
 )
+
+
+def frame_to_policy_batch(frame: dict) -> dict:
+    """A schema frame (one robot or simulator step) as the policy's preprocessor takes it in evaluation: the
+    env-style observation (sensors in the passthrough) of a batch of one, through LeRobot's
+    `preprocess_observation`. Real-robot rollouts and RLBench evaluation feed their frames through it."""
+    import numpy as np
+    from lerobot.envs.utils import preprocess_observation
+
+    def batched(value):
+        return {k: batched(v) for k, v in value.items()} if isinstance(value, dict) else np.expand_dims(value, 0)
+
+    return preprocess_observation(batched(frame_to_env_observation(frame)))
 
 
 def observed_resolution(batch: dict, cameras: list[str]) -> tuple[int, int] | None:

@@ -6,6 +6,17 @@ from __future__ import annotations
 from pathlib import Path
 
 
+def predict_chunk(policy, post, batch: dict):
+    """The policy's whole next action chunk (n, action_dim) as a NumPy array, each action through the
+    postprocessor (unnormalised), for callers that act on more than the next action."""
+    import numpy as np
+    import torch
+
+    with torch.inference_mode():
+        chunk = policy.predict_action_chunk(batch)  # (1, n, action_dim)
+        return np.stack([post(chunk[:, i])[0].cpu().numpy() for i in range(chunk.shape[1])])
+
+
 def load_policy(path: str | Path, device: str = "cpu"):
     """(policy in eval mode on `device`, preprocessor, postprocessor) of the checkpoint at `path`: a
     `pretrained_model` directory, or a Hub repo id (`ORG/NAME`, from the local cache when HF_HUB_OFFLINE=1)."""

@@ -15,13 +15,14 @@ names whatever is missing. Protocol:
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from lerobot_obsbench.policies.env_passthrough import frame_to_policy_batch
+from lerobot_obsbench.policies.loading import predict_chunk
 from lerobot_obsbench.rlbench.format import camera_views, decode_action, encode_pose, low_dim
 from lerobot_obsbench.rlbench.tasks import RLBenchTask
 from lerobot_obsbench.schema import (
@@ -29,7 +30,6 @@ from lerobot_obsbench.schema import (
     STATE_KEY,
     cam2world_key,
     depth_key,
-    frame_to_env_observation,
     image_key,
     intrinsics_key,
 )
@@ -130,21 +130,14 @@ class CheckpointPolicy:
     def act(self, obs) -> np.ndarray:
         """RLBench actions (n, 9): the one to take first, then (step 0 only) the alternatives for retries."""
         import torch
-        from lerobot.envs.utils import preprocess_observation
 
-        observation = frame_to_env_observation(self.frame(obs))
-        batch = self.pre(preprocess_observation(_batched(observation)))
+        batch = self.pre(frame_to_policy_batch(self.frame(obs)))
         with torch.inference_mode():
             actions = [self.post(self.policy.select_action(batch))[0].cpu().numpy()]
-            if self.steps == 0 and hasattr(self.policy, "predict_action_chunk"):
-                chunk = self.policy.predict_action_chunk(batch)
-                actions += [self.post(chunk[:, i])[0].cpu().numpy() for i in range(1, chunk.shape[1])]
+        if self.steps == 0 and hasattr(self.policy, "predict_action_chunk"):
+            actions += list(predict_chunk(self.policy, self.post, batch)[1:])
         self.steps += 1
         return decode_action(np.stack(actions), self.task.location_low, self.task.location_high, self.quaternion)
-
-
-def _batched(value):
-    return {k: _batched(v) for k, v in value.items()} if isinstance(value, dict) else np.expand_dims(value, 0)
 
 
 def evaluate_rlbench(
@@ -223,8 +216,3 @@ def evaluate_rlbench(
         "camera_view": None if camera_view is None else camera_view.__dict__,
         "per_episode": records,
     }
-
-
-def write_results(result: dict, out: Path) -> None:
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2) + "\n")

@@ -32,7 +32,6 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 DEPTH_SCALE = 2**24 - 1
-QUATERNION_MODES = ("pcm_compat", "xyzw")
 ACTION_SIZE = 11  # position (3, scaled by the task's bounds), 6-D rotation, gripper open, ignore collisions
 EPISODE_PATTERN = re.compile(r"episode(\d+)$")
 VARIATION_PATTERN = re.compile(r"variation(\d+)$")

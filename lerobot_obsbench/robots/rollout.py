@@ -24,12 +24,13 @@ import torch
 from lerobot.policies.act.modeling_act import ACTPolicy
 from lerobot.robots import RobotConfig
 
-from lerobot_obsbench.policies.loading import load_policy
+from lerobot_obsbench.policies.env_passthrough import frame_to_policy_batch
+from lerobot_obsbench.policies.loading import load_policy, predict_chunk
 from lerobot_obsbench.robots.checks import RobotSetupError, require_calibrated
 from lerobot_obsbench.robots.frames import action_dict, dataset_features, motor_keys, observation_frame
 from lerobot_obsbench.robots.realtime import AsyncChunks, StepTimer
 from lerobot_obsbench.robots.tasks import real_task
-from lerobot_obsbench.schema import ACTION_KEY, DEPTH_PREFIX, IMAGE_PREFIX, STATE_KEY, frame_to_env_observation
+from lerobot_obsbench.schema import ACTION_KEY, DEPTH_PREFIX, IMAGE_PREFIX, STATE_KEY
 from lerobot_obsbench.stats import wilson_interval
 
 logger = logging.getLogger(__name__)
@@ -112,24 +113,6 @@ def check_policy_fits_robot(policy_config, robot) -> None:
         )
 
 
-def to_batch(frame: dict) -> dict:
-    """A schema frame as the policy's preprocessor takes it in simulated evaluation: the env-style observation
-    (sensors in the passthrough) of a batch of one, through LeRobot's `preprocess_observation`."""
-    from lerobot.envs.utils import preprocess_observation
-
-    def batched(value):
-        return {k: batched(v) for k, v in value.items()} if isinstance(value, dict) else np.expand_dims(value, 0)
-
-    return preprocess_observation(batched(frame_to_env_observation(frame)))
-
-
-def infer_chunk(policy, post, batch: dict) -> np.ndarray:
-    """The policy's next action chunk (n, action_dim), unnormalised, for asynchronous inference."""
-    with torch.inference_mode():
-        chunk = policy.predict_action_chunk(batch)  # (1, n, action_dim)
-        return np.stack([post(chunk[:, i])[0].cpu().numpy() for i in range(chunk.shape[1])])
-
-
 def return_to_rest(robot, rest: dict, seconds: float, fps: int) -> None:
     """Move the joints linearly from where they are to `rest` over `seconds` (max_relative_target still applies)."""
     from lerobot.utils.robot_utils import precise_sleep
@@ -175,7 +158,7 @@ def rollout(robot, config: RolloutConfig, operator: Operator | None = None) -> d
             policy.reset()
             frames, steps, aborted = [], 0, False
             timer = StepTimer(config.fps)
-            chunks = AsyncChunks(lambda batch: infer_chunk(policy, post, batch)) if config.async_inference else None
+            chunks = AsyncChunks(lambda batch: predict_chunk(policy, post, batch)) if config.async_inference else None
             start = time.perf_counter()
             try:
                 while time.perf_counter() - start < config.episode_time_s and not events["exit_early"]:
@@ -184,7 +167,7 @@ def rollout(robot, config: RolloutConfig, operator: Operator | None = None) -> d
                     if video_camera is not None:
                         frames.append(frame[video_camera])
                     t_policy = time.perf_counter()
-                    batch = pre(to_batch({k: frame[k] for k in keys}))
+                    batch = pre(frame_to_policy_batch({k: frame[k] for k in keys}))
                     if chunks is not None:
                         action = chunks.action(steps, batch)
                     else:
