@@ -101,6 +101,21 @@ def cmd_import(args: argparse.Namespace) -> int:
     return 0
 
 
+def camera_view(text: str) -> tuple[str, float, float]:
+    """argparse type of --camera-view: AXIS:DEGREES[,SHIFT_M] with AXIS y or z."""
+    axis, _, rest = text.partition(":")
+    degrees, _, shift = rest.partition(",")
+    try:
+        values = float(degrees), float(shift or 0.0)
+    except ValueError:
+        values = None
+    if axis not in ("y", "z") or values is None:
+        raise argparse.ArgumentTypeError(
+            f"expected AXIS:DEGREES[,SHIFT_M] with AXIS y or z (e.g. y:-5,0.1); got {text!r}"
+        )
+    return (axis, *values)
+
+
 def _text_encoder(weights: str | None):
     from lerobot_obsbench.rlbench.text import load_clip_text_encoder
 
@@ -134,11 +149,7 @@ def cmd_eval_rlbench(args: argparse.Namespace) -> int:
     from lerobot_obsbench.rlbench.tasks import rlbench_task
 
     task = rlbench_task(args.task)
-    view = None
-    if args.camera_view:
-        axis, _, rest = args.camera_view.partition(":")
-        degrees, _, shift = rest.partition(",")
-        view = CameraView(axis, float(degrees), float(shift or 0.0))
+    view = CameraView(*args.camera_view) if args.camera_view else None
     require_rlbench()  # before anything loads
     policy, pre, post = load_policy(args.policy_path, args.device)
     runner = CheckpointPolicy(
@@ -542,7 +553,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data", type=Path, required=True, help="the raw test split folder, e.g. data/rlbench/test")
     p.add_argument("--episodes", type=positive_int, default=25)
     p.add_argument("--max-steps", type=positive_int, default=200)
-    p.add_argument("--camera-view", default=None, help="AXIS:DEGREES[,SHIFT_M], e.g. y:-5,0.1 or z:-10")
+    p.add_argument(
+        "--camera-view", type=camera_view, default=None, help="AXIS:DEGREES[,SHIFT_M], e.g. y:-5,0.1 or z:-10"
+    )
     p.add_argument("--clip-weights", default=None, help="the CLIP checkpoint the dataset was imported with")
     p.add_argument("--quaternion", default="pcm_compat", choices=QUATERNION_MODES)
     p.add_argument("--policy.device", dest="device", default="cpu")

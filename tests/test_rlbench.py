@@ -309,6 +309,23 @@ def test_cli_refuses_unknown_tasks_and_a_missing_simulator(tmp_path):
     assert proc.returncode == 2
     for needed in ("CoppeliaSim 4.1", "COPPELIASIM_ROOT", "PyRep", "MohitShridhar/RLBench", "X display"):
         assert needed in proc.stderr, needed
+    proc = subprocess.run(
+        [
+            str(BIN / "obsbench"),
+            "eval-rlbench",
+            "--policy.path",
+            "p",
+            "--task",
+            "open_drawer",
+            "--data",
+            "d",
+            "--camera-view",
+            "x:five",
+        ],
+        capture_output=True,
+        text=True,
+    )
+    assert proc.returncode == 2 and "expected AXIS:DEGREES[,SHIFT_M] with AXIS y or z" in proc.stderr
 
 
 @pytest.mark.slow
