@@ -1,6 +1,7 @@
 # Every target installs what it needs first: the simulator's Vulkan driver (apt, scripts/setup_system.sh) and
-# .venv with python 3.11, lerobot 0.4.4, mani-skill 3.0.1 and this plugin.
-PYTHON ?= $(shell command -v python3.11 || command -v python3)
+# .venv with Python 3.12, lerobot 0.6.1, mani-skill 3.0.1 and this plugin. The interpreter is found by
+# scripts/find_python.sh ($PYTHON, python3.12 on PATH, pyenv's 3.12, /usr/bin/python3.12); it fails with one line
+# saying how to get one.
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
@@ -9,7 +10,9 @@ STAMP := $(VENV)/.installed
 
 $(STAMP): pyproject.toml scripts/setup_system.sh
 	bash scripts/setup_system.sh
-	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	@# a .venv left by an older set-up (Python 3.11, LeRobot 0.4.4) is replaced, not patched
+	$(BIN)/python -c 'import sys; sys.exit(sys.version_info[:2] != (3, 12))' 2>/dev/null || \
+		{ rm -rf $(VENV) && PY=$$(bash scripts/find_python.sh) && $$PY -m venv $(VENV); }
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -e '.[test]'
 	touch $(STAMP)

@@ -1,24 +1,25 @@
-"""Narrow fixes to LeRobot 0.4.4's dataset loading, applied when the plugin is imported.
+"""Narrow fixes to LeRobot 0.6.1's dataset code, applied when the plugin is imported.
 
-1. Array columns through Python lists. LeRobot formats its `datasets.Dataset` with
+1. Array columns through Python lists. LeRobot's `DatasetReader` formats its `datasets.Dataset` with
    `set_transform(hf_transform_to_torch)`: every read first turns the Arrow rows into Python lists, then
    `torch.tensor(list)`. A 128² depth frame is 16k nested Python ints: ~30 ms per row, and an ACT chunk query
-   (`hf_dataset[key][indices]`) formats every column of its 100 rows, depth included: seconds per sample.
-   `LeRobotTorchFormatter` produces the same output — tensors per row, lists of tensors per batch / column,
-   PIL images as float CHW in [0, 1], same dtypes — from NumPy extraction instead, and
-   `query_hf_dataset_by_column` reads only the queried column. Drop both once LeRobot fixes this upstream.
-2. Video decoding. LeRobot picks torchcodec whenever the package is installed, even when its FFmpeg shared
-   libraries are missing and it cannot load; then decode with the `pyav` backend instead of crashing.
-3. Aggregating datasets with array features (`array_safe_aggregation()`, used only around the plugin's own
+   (`_query_hf_dataset`) formats every column of its 100 rows, depth included: seconds per sample (measured in
+   `benchmarks/bench_loading.py`). `LeRobotTorchFormatter` produces the same output — tensors per row, lists of
+   tensors per batch / column, PIL images through LeRobot's own `pil_to_chw_tensor`, same dtypes, language
+   columns untouched — from NumPy extraction instead, and `query_hf_dataset_by_column` reads only the queried
+   column. Drop both once LeRobot fixes this upstream.
+2. Aggregating datasets with array features (`array_safe_aggregation()`, used only around the plugin's own
    calls of `aggregate_datasets`): LeRobot copies data files through pandas unless the dataset has images, and
    pandas cannot write HF `Array3D` columns (depth) back to parquet. Inside the context the data files take
-   LeRobot's own image path (read and written through `datasets`), which keeps those columns' types. (Appending
-   to an existing data file still concatenates data frames, which pandas cannot do with those columns either:
-   callers give each source its own data file.)
+   LeRobot's own image path (read and written through `datasets`), which keeps those columns' types. (Callers
+   pass `concatenate_data=False`: appending to an existing data file still concatenates data frames, which
+   pandas cannot do with those columns either.)
 
-Fixes 1 and 2 replace LeRobot functions for every process that imports the plugin (LeRobot's plugin discovery imports it
-into every `lerobot-*` command), so `apply()` patches only the LeRobot version they were written and tested
-for (`LEROBOT_VERSION`); on any other it warns and leaves LeRobot as it is.
+(LeRobot 0.4.4 also needed a torchcodec → pyav fallback; 0.6.1's `get_safe_default_video_backend` has it.)
+
+Fix 1 replaces LeRobot methods for every process that imports the plugin (LeRobot's plugin discovery imports it
+into every `lerobot-*` command), so `apply()` patches only the LeRobot version it was written and tested for
+(`LEROBOT_VERSION`); on any other it warns and leaves LeRobot as it is.
 
 `stock_loading()` restores LeRobot's behaviour for the equivalence test and the loading benchmark.
 """
@@ -26,7 +27,6 @@ for (`LEROBOT_VERSION`); on any other it warns and leaves LeRobot as it is.
 from __future__ import annotations
 
 import contextlib
-import functools
 import logging
 from importlib import metadata
 
@@ -35,18 +35,15 @@ import PIL.Image
 import torch
 from datasets.formatting import _register_formatter
 from datasets.formatting.torch_formatter import TorchFormatter
-from lerobot.datasets import lerobot_dataset
-from torchvision.transforms.functional import to_tensor
+from lerobot.datasets.dataset_reader import DatasetReader
+from lerobot.datasets.io_utils import pil_to_chw_tensor
+from lerobot.datasets.language import LANGUAGE_COLUMNS
 
 logger = logging.getLogger(__name__)
 
 FORMAT_TYPE = "lerobot_obsbench_torch"
-LEROBOT_VERSION = "0.4.4"  # the version these patches replace functions of
-_STOCK = {
-    "query": lerobot_dataset.LeRobotDataset._query_hf_dataset,
-    "load": lerobot_dataset.LeRobotDataset.load_hf_dataset,
-    "decode": lerobot_dataset.decode_video_frames,
-}
+LEROBOT_VERSION = "0.6.1"  # the version these patches replace methods of
+_STOCK = {"query": DatasetReader._query_hf_dataset, "load": DatasetReader._load_hf_dataset}
 
 
 class LeRobotTorchFormatter(TorchFormatter):
@@ -54,21 +51,28 @@ class LeRobotTorchFormatter(TorchFormatter):
 
     def _tensorize(self, value):
         if isinstance(value, PIL.Image.Image):
-            return to_tensor(value)  # what LeRobot's transform does: (C, H, W) float in [0, 1]
+            return pil_to_chw_tensor(value)  # LeRobot's own: RGB (C,H,W) float in [0,1], 16-bit depth float32
         return super()._tensorize(value)
 
     def _per_row(self, column):
         return [self._recursive_tensorize(value) for value in column]
 
     def format_column(self, pa_table):
+        name = pa_table.column_names[0]
+        if name in LANGUAGE_COLUMNS:  # LeRobot leaves them as Python objects
+            return self.python_arrow_extractor().extract_column(pa_table)
         column = self.numpy_arrow_extractor().extract_column(pa_table)
-        column = self.python_features_decoder.decode_column(column, pa_table.column_names[0])
+        column = self.python_features_decoder.decode_column(column, name)
         return self._per_row(column)
 
     def format_batch(self, pa_table):
         batch = self.numpy_arrow_extractor().extract_batch(pa_table)
         batch = self.python_features_decoder.decode_batch(batch)
-        return {name: self._per_row(column) for name, column in batch.items()}
+        out = {name: self._per_row(column) for name, column in batch.items() if name not in LANGUAGE_COLUMNS}
+        language = [name for name in pa_table.column_names if name in LANGUAGE_COLUMNS]
+        if language:
+            out.update(self.python_arrow_extractor().extract_batch(pa_table.select(language)))
+        return {name: out[name] for name in pa_table.column_names}
 
 
 _register_formatter(LeRobotTorchFormatter, FORMAT_TYPE)
@@ -81,10 +85,10 @@ def load_hf_dataset_fast(self) -> datasets.Dataset:
 
 
 def query_hf_dataset_by_column(self, query_indices: dict[str, list[int]]) -> dict:
-    """Same contract as LeRobot's `_query_hf_dataset`, but formats only the queried column."""
+    """Same contract as `DatasetReader._query_hf_dataset`, but formats only the queried column."""
     result: dict = {}
     for key, q_idx in query_indices.items():
-        if key in self.meta.video_keys:
+        if key in self._meta.video_keys:
             continue
         relative = (
             q_idx if self._absolute_to_relative_idx is None else [self._absolute_to_relative_idx[i] for i in q_idx]
@@ -93,27 +97,9 @@ def query_hf_dataset_by_column(self, query_indices: dict[str, list[int]]) -> dic
     return result
 
 
-@functools.cache
-def torchcodec_loads() -> bool:
-    """Whether torchcodec's native decoder can actually be loaded (it needs FFmpeg's shared libraries)."""
-    try:
-        import torchcodec.decoders  # noqa: F401
-    except Exception as err:  # torchcodec raises RuntimeError/OSError when FFmpeg is missing
-        first_line = str(err).splitlines()[0] if str(err) else type(err).__name__
-        logger.warning("torchcodec cannot load (%s); decoding videos with the 'pyav' backend.", first_line)
-        return False
-    return True
-
-
-def decode_video_frames_with_fallback(video_path, timestamps, tolerance_s, backend=None):
-    if backend in (None, "torchcodec") and not torchcodec_loads():
-        backend = "pyav"
-    return _STOCK["decode"](video_path, timestamps, tolerance_s, backend)
-
-
 def _set(query, load) -> None:
-    lerobot_dataset.LeRobotDataset._query_hf_dataset = query
-    lerobot_dataset.LeRobotDataset.load_hf_dataset = load
+    DatasetReader._query_hf_dataset = query
+    DatasetReader._load_hf_dataset = load
 
 
 def apply(lerobot_version: str | None = None) -> bool:
@@ -121,14 +107,13 @@ def apply(lerobot_version: str | None = None) -> bool:
     version = lerobot_version or metadata.version("lerobot")
     if version != LEROBOT_VERSION:
         logger.warning(
-            "lerobot_obsbench: LeRobot %s is installed, the dataset-loading fixes were written for %s; "
+            "lerobot_obsbench: LeRobot %s is installed, the dataset-loading fix was written for %s; "
             "leaving LeRobot unpatched (loading depth datasets may be slow).",
             version,
             LEROBOT_VERSION,
         )
         return False
     _set(query_hf_dataset_by_column, load_hf_dataset_fast)
-    lerobot_dataset.decode_video_frames = decode_video_frames_with_fallback
     return True
 
 
@@ -145,17 +130,13 @@ class _ArrayFeaturesAsImages:
     @property
     def image_keys(self) -> list[str]:
         arrays = [k for k, ft in self._meta.features.items() if ft["dtype"] not in ("video", "image", "string")]
-        arrays = [k for k in arrays if len(ft_shape(self._meta.features[k])) >= 2]
+        arrays = [k for k in arrays if len(tuple(self._meta.features[k].get("shape") or ())) >= 2]
         return self._meta.image_keys or arrays
-
-
-def ft_shape(feature: dict) -> tuple:
-    return tuple(feature.get("shape") or ())
 
 
 @contextlib.contextmanager
 def array_safe_aggregation():
-    """LeRobot's `aggregate_datasets`, made to keep array (depth) columns; see fix 3 of the module docstring."""
+    """LeRobot's `aggregate_datasets`, made to keep array (depth) columns; see fix 2 of the module docstring."""
     from lerobot.datasets import aggregate
 
     stock = aggregate.aggregate_data

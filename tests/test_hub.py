@@ -135,8 +135,11 @@ def test_push_a_grid_run_and_pull_it_in_a_new_process(grid_run, tmp_path, monkey
     assert torch.equal(result["action"], grid_run.action)
 
 
-def test_lerobot_train_push_writes_the_plugin_card(grid_run, tmp_path, monkeypatch):
-    """Stock `--policy.push_to_hub=true` goes through the policy's push_model_to_hub: the card is the plugin's."""
+def test_lerobot_train_push_writes_the_plugin_card(grid_run, tiny_dataset, tmp_path, monkeypatch):
+    """Stock `--policy.push_to_hub=true` calls push_model_to_hub as lerobot-train 0.6.1 does (with the state
+    dict and the dataset's metadata): the card is the plugin's and counts the dataset's demonstrations."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+
     from lerobot_obsbench.policies.loading import load_policy
 
     hub = LocalHub(tmp_path / "hub").install(monkeypatch)
@@ -149,9 +152,11 @@ def test_lerobot_train_push_writes_the_plugin_card(grid_run, tmp_path, monkeypat
         batch_size=4,
         save_pretrained=lambda path: (Path(path) / "train_config.json").write_text("{}"),
     )
-    policy.push_model_to_hub(train_cfg)
+    meta = LeRobotDatasetMetadata("local/test", root=tiny_dataset)
+    policy.push_model_to_hub(train_cfg, state_dict=policy.state_dict(), dataset_meta=meta)
     card = (hub.remote("me/from-train") / "README.md").read_text()
-    assert "| observation space | `pointcloud` |" in card and "| training budget | 4 steps x batch 4 |" in card
+    budget = f"| training budget | 4 steps x batch 4 on {meta.total_episodes} demonstrations |"
+    assert "| observation space | `pointcloud` |" in card and budget in card
     assert "| dataset | me/pushcube-demos |" in card and "datasets:\n- me/pushcube-demos" in card
     assert 'pip install "lerobot_policy_obsbench==' in card
 

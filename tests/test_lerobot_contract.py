@@ -1,4 +1,4 @@
-"""The plugin's contract with LeRobot 0.4.4, checked so that a LeRobot change fails here loudly:
+"""The plugin's contract with LeRobot 0.6.1, checked so that a LeRobot change fails here loudly:
 
 - obs_act on rgb with an encoder equal to ACT's own (ResNet-18, layer4 tokens, 1x1 projection, 2-D sine
   positions) gives stock ACT's loss on the same weights and batch;
@@ -15,7 +15,7 @@ import logging
 import pytest
 import torch
 from lerobot.configs.types import FeatureType, PolicyFeature
-from lerobot.datasets import lerobot_dataset
+from lerobot.datasets.dataset_reader import DatasetReader
 from lerobot.policies.act.configuration_act import ACTConfig
 from lerobot.policies.act.modeling_act import ACTPolicy
 from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
@@ -128,13 +128,34 @@ def test_obs_diffusion_denoiser_and_loss_are_stock_diffusion(tiny_dataset):
 
 def test_loading_patches_apply_only_to_the_lerobot_they_were_written_for(caplog, monkeypatch):
     stock_query = patches._STOCK["query"]
-    monkeypatch.setattr(lerobot_dataset.LeRobotDataset, "_query_hf_dataset", stock_query)
+    monkeypatch.setattr(DatasetReader, "_query_hf_dataset", stock_query)
     with caplog.at_level(logging.WARNING):
         assert patches.apply("0.5.0") is False
-    assert lerobot_dataset.LeRobotDataset._query_hf_dataset is stock_query
+    assert DatasetReader._query_hf_dataset is stock_query
     assert "LeRobot 0.5.0 is installed" in caplog.text and patches.LEROBOT_VERSION in caplog.text
-    assert patches.apply() is True  # the installed 0.4.4
-    assert lerobot_dataset.LeRobotDataset._query_hf_dataset is patches.query_hf_dataset_by_column
+    assert patches.apply() is True  # the installed 0.6.1
+    assert DatasetReader._query_hf_dataset is patches.query_hf_dataset_by_column
+
+
+def test_one_opencv_in_the_environment():
+    """sapien asks for opencv-python, LeRobot for opencv-python-headless: both install `cv2`, so a version
+    mismatch leaves whichever was installed last in charge, and `pip check` says nothing."""
+    from importlib.metadata import version
+
+    import cv2
+
+    full, headless = version("opencv-python"), version("opencv-python-headless")
+    assert full == headless, f"opencv-python {full} beside opencv-python-headless {headless}"
+    assert full.startswith(cv2.__version__ + "."), (cv2.__version__, full)
+
+
+def test_diffusion_fields_the_plugin_relies_on_are_pinned():
+    """LeRobot 0.6 changed Diffusion's defaults (horizon 64, 32 action steps, ImageNet backbone weights, no group
+    norm, one encoder per camera); the plugin keeps the paper's values whatever LeRobot's defaults are."""
+    config = ObsDiffusionConfig(device="cpu")
+    assert (config.horizon, config.n_action_steps, config.n_obs_steps) == (16, 8, 2)
+    assert config.pretrained_backbone_weights is None  # nothing downloads
+    assert (config.use_group_norm, config.use_separate_rgb_encoder_per_camera) == (True, False)
 
 
 @pytest.mark.parametrize(

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
-from lerobot.datasets.utils import dataset_to_policy_features
+from lerobot.utils.feature_utils import dataset_to_policy_features
 from safetensors.torch import load_file
 
 from lerobot_obsbench.policies import ObsACTConfig, ObsDiffusionConfig

@@ -153,6 +153,7 @@ def record(robot, teleop, config: RecordingConfig, events: dict | None = None) -
 
 
 def _record_locked(robot, teleop, config: RecordingConfig, events: dict | None) -> dict:
+    from lerobot.configs.video import RGBEncoderConfig
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     root = Path(config.root)
@@ -193,18 +194,17 @@ def _record_locked(robot, teleop, config: RecordingConfig, events: dict | None) 
                 robot_type=robot.name,
                 use_videos=True,
                 image_writer_threads=config.image_writer_threads_per_camera * cameras,
-                vcodec=config.vcodec,
+                rgb_encoder=RGBEncoderConfig(vcodec=config.vcodec),
             )
             timing = control_loop(robot, teleop, config.episode_time_s, config.fps, events, dataset, config.task)
             if events["rerecord_episode"] or timing.frames == 0:
                 events["rerecord_episode"] = False
-                dataset.stop_image_writer()
+                dataset.writer.stop_image_writer()
                 shutil.rmtree(tmp)
                 print("episode discarded; recording it again")
                 continue
             dataset.save_episode()
-            dataset.finalize()
-            dataset.stop_image_writer()
+            dataset.finalize()  # also waits for and stops the image writer
             tmp.rename(staging / f"episode_{index:04d}")
             timings.append({"episode": index, **asdict(timing), "fps": round(timing.fps, 2)})
             (staging / "timings.json").write_text(json.dumps(timings, indent=1))
@@ -248,7 +248,7 @@ def _aggregate(root: Path, episodes: list[Path], config: RecordingConfig, timing
             aggr_root=assembling,
             # one data file per episode: appending to a file concatenates data frames, which pandas cannot do
             # with the depth columns' extension type
-            data_files_size_in_mb=1e-6,
+            concatenate_data=False,
         )
     for entry in assembling.iterdir():
         target = root / entry.name
@@ -276,7 +276,7 @@ def _aggregate(root: Path, episodes: list[Path], config: RecordingConfig, timing
 
 
 def _keyboard_events() -> dict:
-    from lerobot.utils.control_utils import init_keyboard_listener
+    from lerobot.utils.keyboard_input import init_keyboard_listener
 
     return init_keyboard_listener()[1]
 

@@ -128,15 +128,16 @@ def model_card(
 class ModelCardMixin:
     """The plugin's card for stock `lerobot-train --policy.push_to_hub=true` (LeRobot's own card knows neither
     the observation space nor that the plugin must be installed). LeRobot's card also asks the Hub to validate
-    it, a network call this card does not make."""
+    it, a network call this card does not make. LeRobot 0.6 passes the training config and the dataset's
+    metadata to `generate_model_card`: the card takes the task and budget from the first, the number of
+    demonstrations from the second."""
 
-    def push_model_to_hub(self, cfg, peft_model=None):
-        self._train_config = cfg  # for the card: dataset, task and budget
-        return super().push_model_to_hub(cfg, peft_model=peft_model)
-
-    def generate_model_card(self, dataset_repo_id, model_type, license, tags):
-        cfg = getattr(self, "_train_config", None)
-        training = {"steps": cfg.steps, "batch_size": cfg.batch_size} if cfg is not None else None
+    def generate_model_card(self, dataset_repo_id, model_type, license, tags, cfg=None, dataset_meta=None):
+        training = None
+        if cfg is not None:
+            training = {"steps": cfg.steps, "batch_size": cfg.batch_size}
+            if dataset_meta is not None:
+                training["demos"] = dataset_meta.total_episodes
         task = getattr(getattr(cfg, "env", None), "task", None)
         return model_card(
             self.config, dataset=dataset_repo_id, task=task, training=training, repo_id=self.config.repo_id

@@ -233,7 +233,7 @@ def summarize(records: list[dict], config: RolloutConfig, policy_config) -> dict
 
 
 def _keyboard_events() -> dict:
-    from lerobot.utils.control_utils import init_keyboard_listener
+    from lerobot.utils.keyboard_input import init_keyboard_listener
 
     return init_keyboard_listener()[1]
 

@@ -114,12 +114,16 @@ class ObsACTPolicy(ModelCardMixin, EnvObservationMixin, ACTPolicy):
         self.reset()
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
-        """ACT's training loss: the action reconstruction error (L1, or the official code's MSE) over non-padded
-        steps, + KL weight x KL."""
+        """ACT's training loss: the action reconstruction error over non-padded steps, + KL weight x KL. "l1" is
+        LeRobot 0.6's ACT (L1 averaged over the valid elements); "mse" the official code's (squared error with
+        padded steps zeroed, averaged over all elements)."""
         actions_hat, (mu, log_sigma_x2) = self.model(batch)
-        error_fn = F.l1_loss if self.config.action_loss == "l1" else F.mse_loss
-        error = error_fn(batch[ACTION], actions_hat, reduction="none")
-        reconstruction = (error * ~batch["action_is_pad"].unsqueeze(-1)).mean()
+        valid = ~batch["action_is_pad"].unsqueeze(-1)
+        if self.config.action_loss == "l1":
+            error = F.l1_loss(batch[ACTION], actions_hat, reduction="none")
+            reconstruction = (error * valid).sum() / (valid.sum() * error.shape[-1]).clamp_min(1)
+        else:
+            reconstruction = (F.mse_loss(batch[ACTION], actions_hat, reduction="none") * valid).mean()
         loss_dict = {f"{self.config.action_loss}_loss": reconstruction.item()}
         loss = reconstruction
         if self.config.use_vae:

@@ -22,14 +22,24 @@ IMAGE_PIPELINE = (
 @PreTrainedConfig.register_subclass("obs_diffusion")
 @dataclass
 class ObsDiffusionConfig(ObservationConfig, DiffusionConfig):
-    """Diffusion Policy (LeRobot 0.4.4, 1-D conditional UNet) whose observation encoder is chosen by
+    """Diffusion Policy (LeRobot 0.6.1, 1-D conditional UNet) whose observation encoder is chosen by
     `obs_space` / `encoder`.
 
-    LeRobot's defaults already match the paper (horizon 16, 2 observation steps, 8 action steps, down dims
-    512-1024-2048, kernel 5, 8 groups, step embedding 128, FiLM scale, 100 DDPM steps); the optimiser is the
-    paper's AdamW + OneCycle (betas (0.9, 0.999): the official code never passes its configured (0.9, 0.95)).
-    See `lerobot_obsbench.presets` for the small CPU preset.
+    The paper's values (2 observation steps, down dims 512-1024-2048, kernel 5, 8 groups, step embedding 128,
+    FiLM scale, 100 DDPM steps) are LeRobot's defaults; the ones LeRobot 0.6 changed are pinned here (horizon,
+    action steps, and the replaced image-pipeline fields at their 0.4.4 values, which checkpoints saved by the
+    plugin on 0.4.4 carry). The optimiser is the paper's AdamW + OneCycle (betas (0.9, 0.999): the official code
+    never passes its configured (0.9, 0.95)). See `lerobot_obsbench.presets` for the small CPU preset.
     """
+
+    # Paper (and LeRobot <= 0.5): a 16-step horizon of which 8 actions are executed (LeRobot 0.6: 64 / 32).
+    horizon: int = 16
+    n_action_steps: int = 8
+    # Diffusion's own image pipeline, unused here (REPLACED_FIELDS): pinned to the values the plugin's
+    # checkpoints have always saved, so that nothing downloads and old checkpoints load with their values.
+    pretrained_backbone_weights: str | None = None
+    use_group_norm: bool = True
+    use_separate_rgb_encoder_per_camera: bool = False
 
     # Paper learning rates {1e-5, 5e-5, 1e-4}.
     optimizer_lr: float = 1e-4
