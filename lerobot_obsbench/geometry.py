@@ -31,6 +31,75 @@ def unproject_depth(depth: Tensor, K: Tensor) -> Tensor:
     return torch.stack([x, y, depth], dim=-1)
 
 
+def register_depth(
+    depth: Tensor,
+    k_depth: Tensor,
+    depth_to_color: Tensor,
+    k_color: Tensor,
+    size: tuple[int, int],
+    steps: int = 3,
+    tolerance: float = 1e-3,
+) -> Tensor:
+    """Depth maps (B, Hd, Wd) in metres seen by a depth camera, re-expressed as the colour camera sees them:
+    (B, H, W) metres along the COLOUR camera's optical axis at the colour pixel centres, 0 where unknown.
+
+    librealsense's `rs.align` writes each depth pixel's own (depth-camera) z into the colour pixel it lands on,
+    which is exact only for a pure x-baseline; this function gives the colour-frame z. Two stages:
+    1. splat: every valid depth pixel is unprojected with the depth intrinsics, moved into the colour frame by
+       `depth_to_color` (B, 4, 4: depth-camera -> colour-camera coordinates) and projected to its nearest colour
+       pixel; the nearest point wins (z-buffer). This starts each colour pixel (holes take their nearest
+       neighbour's start) but is off by up to half a pixel's footprint on slanted surfaces.
+    2. refine (`steps` fixed-point iterations): for each colour pixel, the point at depth z on its ray is moved
+       into the depth camera and the depth map is interpolated bilinearly where it lands; z is updated so that the
+       point lies on that interpolated surface. Pixels whose four depth neighbours are not one surface (a jump of
+       more than 2% of the depth: occlusion edges) or whose final residual exceeds `tolerance` metres keep their
+       splatted value (or stay 0 when they had none)."""
+    b, hd, wd = depth.shape
+    h, w = size
+    dtype, device = depth.dtype, depth.device
+    # 1. splat
+    points = transform_points(unproject_depth(depth, k_depth).reshape(b, -1, 3), depth_to_color)
+    z = points[..., 2]
+    valid = (depth.reshape(b, -1) > 0) & (z > 0)
+    safe_z = torch.where(valid, z, torch.ones_like(z))
+    u = torch.round(k_color[:, 0, 0, None] * points[..., 0] / safe_z + k_color[:, 0, 2, None])
+    v = torch.round(k_color[:, 1, 1, None] * points[..., 1] / safe_z + k_color[:, 1, 2, None])
+    valid &= (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    pixel = (v * w + u).long().clamp(0, h * w - 1) + torch.arange(b, device=device)[:, None] * (h * w)
+    far = torch.full((b * h * w,), float("inf"), dtype=dtype, device=device)
+    splat = far.scatter_reduce(0, pixel[valid], z[valid], reduce="amin").reshape(b, 1, h, w)
+    start = torch.where(torch.isinf(splat), -torch.nn.functional.max_pool2d(-splat, 3, 1, 1), splat)[:, 0]
+    splat = torch.where(torch.isinf(splat[:, 0]), torch.zeros_like(start), splat[:, 0])
+    started = torch.isfinite(start)
+    z_c = torch.where(started, start, torch.ones_like(start))
+    # 2. refine: the colour ray's point z * ray, in depth-camera coordinates, is z * q + t
+    ray = unproject_depth(torch.ones(b, h, w, dtype=dtype, device=device), k_color)  # (B, H, W, 3), z = 1
+    color_to_depth = invert_transform(depth_to_color)
+    q = ray.reshape(b, -1, 3) @ color_to_depth[:, :3, :3].transpose(1, 2)
+    t = color_to_depth[:, None, :3, 3]
+    flat_depth = depth.reshape(b, -1)
+    batch = torch.arange(b, device=device)[:, None]
+    z_c = z_c.reshape(b, -1)
+    for _ in range(steps + 1):
+        p = z_c[..., None] * q + t
+        pz = torch.where(p[..., 2] > 0, p[..., 2], torch.ones_like(p[..., 2]))
+        ud = k_depth[:, 0, 0, None] * p[..., 0] / pz + k_depth[:, 0, 2, None]
+        vd = k_depth[:, 1, 1, None] * p[..., 1] / pz + k_depth[:, 1, 2, None]
+        x0, y0 = torch.floor(ud), torch.floor(vd)
+        inside = (x0 >= 0) & (x0 < wd - 1) & (y0 >= 0) & (y0 < hd - 1) & (p[..., 2] > 0)
+        base = (y0.clamp(0, hd - 2) * wd + x0.clamp(0, wd - 2)).long()
+        corners = torch.stack([flat_depth[batch, base + offset] for offset in (0, 1, wd, wd + 1)], dim=-1)
+        fx, fy = (ud - x0).clamp(0, 1), (vd - y0).clamp(0, 1)
+        weights = torch.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], dim=-1)
+        surface = (corners * weights).sum(-1)
+        lo, hi = corners.amin(-1), corners.amax(-1)
+        one_surface = inside & (lo > 0) & (hi - lo < 0.02 * hi)
+        residual = (p[..., 2] - surface).abs()
+        z_c = torch.where(one_surface, (surface - t[..., 2]) / q[..., 2], z_c)
+    refined = one_surface & (residual < tolerance) & started.reshape(b, -1)
+    return torch.where(refined, z_c, torch.zeros_like(z_c)).reshape(b, h, w)
+
+
 def transform_points(points: Tensor, transform: Tensor) -> Tensor:
     """Apply rigid transforms (B, 4, 4) to points (B, ..., 3)."""
     b = points.shape[0]

@@ -149,6 +149,61 @@ def cameras_in(features: Mapping[str, object]) -> list[str]:
     return cams
 
 
+# ---- LeRobot's own depth recordings -----------------------------------------------------------------------
+# LeRobot 0.6 records a RealSense's depth as `observation.images.<cam>_depth` (`info.is_depth_map`; a 1-channel
+# video or 16-bit image, read back as float millimetres (1, H, W)), in the depth camera's own pixels and with no
+# intrinsics or pose. With the camera's calibration attached (camera_calibration.py) it serves every space:
+# `with_calibrated_depth` stands in the schema keys the policy derives from it (depth registered into the colour
+# camera, K, cam2world).
+STOCK_DEPTH_SUFFIX = "_depth"
+ATTACH_CALIBRATION_HINT = (
+    "attach the camera's calibration to the dataset first: obsbench attach-calibration DATASET --camera {cam} "
+    "(--from-recording FILE.bag | --serial SERIAL | --from-json FILE) --cam2world FILE (docs/real_robot.md)"
+)
+
+
+def stock_depth_key(cam: str) -> str:
+    return IMAGE_PREFIX + cam + STOCK_DEPTH_SUFFIX
+
+
+def is_stock_depth(key: str, feature: object) -> bool:
+    """Whether a feature is LeRobot's own depth map: `observation.images.<cam>_depth` flagged `is_depth_map`
+    (dataset features), or of one channel (policy features, which carry no flags)."""
+    if not (key.startswith(IMAGE_PREFIX) and key.endswith(STOCK_DEPTH_SUFFIX)):
+        return False
+    if isinstance(feature, Mapping) and isinstance(feature.get("info"), Mapping):
+        return bool(feature["info"].get("is_depth_map") or feature["info"].get("video.is_depth_map"))
+    shape = _shape(feature)
+    return len(shape) == 3 and 1 in (shape[0], shape[-1]) and 3 not in (shape[0], shape[-1])
+
+
+def stock_depth_cameras(features: Mapping[str, object]) -> list[str]:
+    """Cameras recorded with LeRobot's own depth feature."""
+    return [
+        key.removeprefix(IMAGE_PREFIX).removesuffix(STOCK_DEPTH_SUFFIX)
+        for key, ft in features.items()
+        if is_stock_depth(key, ft)
+    ]
+
+
+def with_calibrated_depth(features: Mapping[str, object], calibration: Mapping[str, Mapping]) -> dict:
+    """`features` as the policy sees them once LeRobot's depth maps are registered: each calibrated camera's
+    stock depth key is replaced by the schema's depth (at the colour resolution), intrinsics and cam2world keys;
+    an uncalibrated one is dropped (it is not a colour camera)."""
+    out = {}
+    for key, ft in features.items():
+        if not is_stock_depth(key, ft):
+            out[key] = ft
+            continue
+        cam = key.removeprefix(IMAGE_PREFIX).removesuffix(STOCK_DEPTH_SUFFIX)
+        if cam in calibration:
+            height, width = calibration[cam]["color_size"]
+            out[depth_key(cam)] = {"dtype": "int32", "shape": (height, width, 1)}
+            out[intrinsics_key(cam)] = {"dtype": "float32", "shape": (3, 3)}
+            out[cam2world_key(cam)] = {"dtype": "float32", "shape": (4, 4)}
+    return out
+
+
 # ---- validation of LeRobot feature dictionaries ----------------------------------------------------------
 
 
@@ -174,9 +229,13 @@ def _expected(prefix: str, shape: tuple[int, ...]) -> tuple[bool, str]:
 
 
 def validate_features(
-    features: Mapping[str, object], obs_space: str, cameras: list[str] | tuple[str, ...] | None = None
+    features: Mapping[str, object],
+    obs_space: str,
+    cameras: list[str] | tuple[str, ...] | None = None,
+    calibration: Mapping[str, Mapping] | None = None,
 ) -> list[str]:
-    """Check that `features` (a LeRobot dataset `features` dict or policy features) serve `obs_space`.
+    """Check that `features` (a LeRobot dataset `features` dict or policy features) serve `obs_space`;
+    `calibration` (camera -> CameraCalibration fields) makes LeRobot's own depth maps count as depth.
 
     Returns the cameras used (all cameras that have the needed keys when `cameras` is None; none for the blind
     space). Raises `SchemaError` naming every missing or mis-shaped key and how to fix it.
@@ -185,8 +244,13 @@ def validate_features(
     needed = SPACE_SENSORS[obs_space]
     if not needed:
         return []
+    uncalibrated = stock_depth_cameras(features)
+    features = with_calibrated_depth(features, calibration or {})
+    uncalibrated = [c for c in uncalibrated if depth_key(c) not in features] if DEPTH_PREFIX in needed else []
     if cameras is None or len(cameras) == 0:
         cameras = [c for c in cameras_in(features) if all(p + c in features for p in needed)]
+        if not cameras and uncalibrated:
+            raise _uncalibrated(obs_space, uncalibrated[0])
         if not cameras:
             present = sorted(k for k in features if k.startswith(OBS_PREFIX))
             raise SchemaError(
@@ -195,6 +259,9 @@ def validate_features(
                 "and cam2world with the frames (see the schema in lerobot_obsbench/schema.py), or pick "
                 "an observation space the dataset supports."
             )
+    for cam in cameras:
+        if cam in uncalibrated:
+            raise _uncalibrated(obs_space, cam)
     problems = []
     for cam in cameras:
         for prefix in needed:
@@ -218,11 +285,21 @@ def validate_features(
     return list(cameras)
 
 
-def camera_resolution(features: Mapping[str, object], obs_space: str, cameras: list[str]) -> list[int]:
+def _uncalibrated(obs_space: str, cam: str) -> SchemaError:
+    return SchemaError(
+        f"obs_space={obs_space!r} needs the calibration of camera {cam!r}: {stock_depth_key(cam)} is LeRobot's own "
+        "depth recording (depth-camera pixels, no intrinsics or pose); " + ATTACH_CALIBRATION_HINT.format(cam=cam) + "."
+    )
+
+
+def camera_resolution(
+    features: Mapping[str, object], obs_space: str, cameras: list[str], calibration: Mapping | None = None
+) -> list[int]:
     """(height, width) of the first camera's frames (colour, else depth), as the policy was trained on; empty when
     the space reads no camera."""
     if not cameras:
         return []
+    features = with_calibrated_depth(features, calibration or {})
     cam = cameras[0]
     for key in (image_key(cam), depth_key(cam)):
         if key in features and prefix_of(key) in SPACE_SENSORS[obs_space]:

@@ -18,7 +18,7 @@
     none       -> (B, 0): the blind control sees nothing (the batch size comes from observation.state).
 
 The same module runs on dataset batches in training and on env observations in evaluation, so an observation
-space is never baked into stored data.
+space is never baked into stored data. `CalibratedDepth` runs before it on datasets recorded by LeRobot itself.
 """
 
 from __future__ import annotations
@@ -44,6 +44,7 @@ from lerobot_obsbench.schema import (
     depth_key,
     image_key,
     intrinsics_key,
+    stock_depth_key,
 )
 
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
@@ -275,3 +276,63 @@ def _require(batch: dict, key: str) -> Tensor:
             "--policy.obs_space / --policy.cameras."
         )
     return batch[key]
+
+
+class CalibratedDepth(nn.Module):
+    """LeRobot 0.6's own depth recordings -> the schema's sensor keys, with the cameras' attached calibration
+    (`camera_calibration.CameraCalibration` fields per camera, from the policy config).
+
+    `observation.images.<cam>_depth` (float stored units, (..., 1, Hd, Wd), in the depth camera's pixels) becomes
+    `observation.depth.<cam>`: holes (stored values at or below `depth_min_mm`, where LeRobot's video codec puts
+    them) set to 0, units to millimetres, registered into the colour camera with z in the colour frame
+    (`geometry.register_depth`), rounded to integer mm (..., H, W, 1); `observation.intrinsics.<cam>` and
+    `observation.cam2world.<cam>` are the colour camera's K and pose, repeated over the leading dimensions.
+    Batches without the stock keys (the plugin's own datasets, simulators) pass through unchanged."""
+
+    def __init__(self, calibration: dict[str, dict]):
+        super().__init__()
+        self.cameras = sorted(calibration)
+        self.color_sizes, self.units, self.holes = {}, {}, {}
+        for cam in self.cameras:
+            entry = calibration[cam]
+            self.color_sizes[cam] = tuple(entry["color_size"])
+            self.units[cam] = float(entry.get("depth_unit_mm", 1.0))
+            self.holes[cam] = float(entry.get("depth_min_mm", 0.0))
+            for name in ("depth_intrinsics", "depth_to_color", "color_intrinsics", "cam2world"):
+                self.register_buffer(f"{cam}__{name}", torch.tensor(entry[name], dtype=torch.float32), persistent=False)
+
+    def forward(self, batch: dict) -> dict:
+        if not any(stock_depth_key(cam) in batch for cam in self.cameras):
+            return batch
+        out = dict(batch)
+        for cam in self.cameras:
+            raw = batch.get(stock_depth_key(cam))
+            if raw is None:
+                continue
+            if raw.dim() < 3 or raw.shape[-3] != 1:
+                raise SchemaError(
+                    f"{stock_depth_key(cam)}: expected depth maps (..., 1, H, W), got {tuple(raw.shape)}."
+                )
+            lead, (hd, wd) = raw.shape[:-3], raw.shape[-2:]
+            stored = raw.reshape(-1, hd, wd).float()
+            # half a unit above the codec's hole value, which comes back as depth_min up to float rounding
+            limit = self.holes[cam] + 0.5 if self.holes[cam] > 0 else 0.0
+            metres = torch.where(stored > limit, stored * (self.units[cam] / 1000.0), torch.zeros_like(stored))
+            n = metres.shape[0]
+
+            def repeat(name: str, cam: str = cam, n: int = n) -> Tensor:
+                value = getattr(self, f"{cam}__{name}")
+                return value.expand(n, *value.shape)
+
+            registered = geometry.register_depth(
+                metres,
+                repeat("depth_intrinsics"),
+                repeat("depth_to_color"),
+                repeat("color_intrinsics"),
+                self.color_sizes[cam],
+            )
+            height, width = self.color_sizes[cam]
+            out[depth_key(cam)] = (registered * 1000.0).round().to(torch.int32).reshape(*lead, height, width, 1)
+            out[intrinsics_key(cam)] = repeat("color_intrinsics").reshape(*lead, 3, 3)
+            out[cam2world_key(cam)] = repeat("cam2world").reshape(*lead, 4, 4)
+        return out

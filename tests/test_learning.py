@@ -12,8 +12,8 @@ import torch
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.datasets.factory import resolve_delta_timestamps
 from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
-from lerobot.utils.feature_utils import dataset_to_policy_features
 from lerobot.policies.factory import make_policy, make_pre_post_processors
+from lerobot.utils.feature_utils import dataset_to_policy_features
 
 TRAIN_EPISODES, TEST_EPISODES = 30, 6
 

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from lerobot_obsbench.camera_calibration import calibration_path, read_calibration
 from lerobot_obsbench.geometry import rigidity_error
 from lerobot_obsbench.schema import (
     CAM2WORLD_PREFIX,
@@ -37,6 +38,7 @@ from lerobot_obsbench.schema import (
     frame_size,
     image_key,
     intrinsics_key,
+    stock_depth_cameras,
     validate_features,
 )
 from lerobot_obsbench.spaces import MAX_EMPTY_FRACTION, RIGID_TOLERANCE
@@ -184,13 +186,17 @@ def _check_sizes(cam: str, features: dict, scan: CameraScan) -> None:
 
 
 def space_verdicts(
-    features: dict, spaces: tuple[str, ...], cameras: list[str] | None, scans: dict[str, CameraScan] | None
+    features: dict,
+    spaces: tuple[str, ...],
+    cameras: list[str] | None,
+    scans: dict[str, CameraScan] | None,
+    calibration: dict | None = None,
 ) -> dict[str, tuple[list[str], list[str]]]:
     """space -> (cameras used, problems): metadata problems, then the scanned sensors' (when `scans`)."""
     verdicts = {}
     for space in spaces:
         try:
-            used = validate_features(features, space, cameras)
+            used = validate_features(features, space, cameras, calibration)
         except SchemaError as err:
             verdicts[space] = ([], [str(err)])
             continue
@@ -222,13 +228,18 @@ def validate_dataset(
 
     meta = LeRobotDatasetMetadata(repo_id, root=root)
     features = meta.features
+    calibration = {cam: c.to_dict() for cam, c in read_calibration(root).items()}
+    stock = [cam for cam in stock_depth_cameras(features) if cam in calibration]
     spaces = OBS_SPACES if obs_space == "all" else (obs_space,)
     scans = None
     if not quick:
-        scanned = sorted({c for space in spaces for c in _used(features, space, cameras)})
+        used = {c for space in spaces for c in _used(features, space, cameras, calibration)}
+        scanned = sorted(used - set(stock))
         scans = scan_dataset(Path(root), features, scanned, progress=progress) if scanned else {}
     failures = 0
-    for space, (used, problems) in space_verdicts(features, spaces, cameras, scans).items():
+    for cam in stock:
+        echo(f"note    {cam}: LeRobot's own depth recording, registered to colour with {calibration_path(root)}")
+    for space, (used, problems) in space_verdicts(features, spaces, cameras, scans, calibration).items():
         if problems:
             failures += 1
             echo(f"FAILED  {space:10s} " + "\n                   ".join(problems))
@@ -242,8 +253,8 @@ def validate_dataset(
     return 1 if failures else 0
 
 
-def _used(features: dict, space: str, cameras: list[str] | None) -> list[str]:
+def _used(features: dict, space: str, cameras: list[str] | None, calibration: dict) -> list[str]:
     try:
-        return validate_features(features, space, cameras)
+        return validate_features(features, space, cameras, calibration)
     except SchemaError:
         return []

@@ -43,8 +43,9 @@ def observed_resolution(batch: dict, cameras: list[str]) -> tuple[int, int] | No
 class EnvObservationMixin:
     """Unpacks the env's `observation.robot_state` passthrough (depth, intrinsics, cam2world; see
     `schema.unpack_passthrough`) onto the policy's device before LeRobot's own `select_action` /
-    `predict_action_chunk` run, after checking that the env's cameras, resolution and state fit the policy;
-    `from_pretrained` refuses an env whose action size differs from the checkpoint's."""
+    `predict_action_chunk` run, after checking that the env's cameras, resolution and state fit the policy, then
+    registers LeRobot-recorded depth with the policy's `calibrated_depth`; `from_pretrained` refuses an env whose
+    action size differs from the checkpoint's."""
 
     def _unpack(self, batch: dict) -> dict:
         unpacked = unpack_passthrough(batch)
@@ -61,10 +62,10 @@ class EnvObservationMixin:
         return {k: v.to(device) if isinstance(v, Tensor) and device else v for k, v in unpacked.items()}
 
     def select_action(self, batch: dict, *args, **kwargs) -> Tensor:
-        return super().select_action(self._unpack(batch), *args, **kwargs)
+        return super().select_action(self.calibrated_depth(self._unpack(batch)), *args, **kwargs)
 
     def predict_action_chunk(self, batch: dict, *args, **kwargs) -> Tensor:
-        return super().predict_action_chunk(self._unpack(batch), *args, **kwargs)
+        return super().predict_action_chunk(self.calibrated_depth(self._unpack(batch)), *args, **kwargs)
 
     @classmethod
     def from_pretrained(cls, pretrained_name_or_path, *, config=None, **kwargs):

@@ -10,6 +10,7 @@ from typing import ClassVar
 
 from lerobot.optim.optimizers import AdamWConfig
 
+from lerobot_obsbench.camera_calibration import read_calibration
 from lerobot_obsbench.encoders import (
     EncoderContext,
     available_encoders,
@@ -34,6 +35,7 @@ from lerobot_obsbench.schema import (
     check_obs_space,
     is_sensor_key,
     sensor_keys,
+    stock_depth_cameras,
     validate_features,
 )
 from lerobot_obsbench.spaces import DEFAULT_WORKSPACE, check_geometry
@@ -75,6 +77,10 @@ class ObservationConfig:
     # (height, width) of the camera frames the policy was trained on; filled in from the dataset and saved,
     # so evaluation can refuse an env rendering another size.
     camera_resolution: list[int] = field(default_factory=list)
+    # Calibration of cameras recorded with LeRobot's own depth feature (`observation.images.<cam>_depth`): camera ->
+    # the fields of `camera_calibration.CameraCalibration`. Filled in from the dataset's meta/obsbench_cameras.json
+    # (`obsbench attach-calibration`) when training starts, and saved with the checkpoint.
+    depth_calibration: dict[str, dict] = field(default_factory=dict)
     # Frame of point coordinates (pointcloud, pointmap): world, camera (first camera) or ee (end effector,
     # from the last 7 values of observation.state: xyz + quaternion wxyz).
     frame: str = "world"
@@ -255,8 +261,10 @@ class ObservationConfig:
         normalised by the adapter so that training and evaluation see identical inputs."""
         sensors = {k: ft for k, ft in self.input_features.items() if is_sensor_key(k)}
         if sensors or not self.cameras:
-            self.cameras = validate_features(self.input_features, self.obs_space, self.cameras or None)
-            self.camera_resolution = camera_resolution(self.input_features, self.obs_space, self.cameras)
+            calibration = self.depth_calibration
+            self.cameras = validate_features(self.input_features, self.obs_space, self.cameras or None, calibration)
+            self.camera_resolution = camera_resolution(self.input_features, self.obs_space, self.cameras, calibration)
+        self.depth_calibration = {cam: v for cam, v in self.depth_calibration.items() if cam in self.cameras}
         self.input_features = {k: ft for k, ft in self.input_features.items() if not is_sensor_key(k)}
         state = self.input_features.get(STATE_KEY)
         if self.frame == "ee" and self.obs_space in ("pointcloud", "pointmap"):
@@ -266,6 +274,15 @@ class ObservationConfig:
                     f"{STATE_KEY}; the dataset has {state.shape if state else 'no state'}. Record the EE "
                     "pose (xyz + quaternion wxyz) at the end of the state or use --policy.frame=world."
                 )
+
+    def read_dataset_calibration(self, dataset_meta) -> None:
+        """Take the calibration of the dataset's LeRobot-recorded depth cameras from its meta/ folder (once: a
+        loaded checkpoint keeps the calibration it was trained with)."""
+        if dataset_meta is None or self.depth_calibration or getattr(dataset_meta, "root", None) is None:
+            return
+        stock = stock_depth_cameras(dataset_meta.features)
+        calibration = read_calibration(dataset_meta.root)
+        self.depth_calibration = {cam: calibration[cam].to_dict() for cam in stock if cam in calibration}
 
     def observation_keys(self) -> list[str]:
         return sensor_keys(self.obs_space, self.cameras)

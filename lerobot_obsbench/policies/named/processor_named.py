@@ -15,7 +15,6 @@ BASE_PROCESSORS = {
     "obs_diffusion": make_obs_diffusion_pre_post_processors,
 }
 NAMED_PROCESSORS = {
-    f"make_{name}_pre_post_processors": BASE_PROCESSORS[base_type]
-    for name, (base_type, _, _) in NAMED_POLICIES.items()
+    f"make_{name}_pre_post_processors": BASE_PROCESSORS[base_type] for name, (base_type, _, _) in NAMED_POLICIES.items()
 }
 globals().update(NAMED_PROCESSORS)

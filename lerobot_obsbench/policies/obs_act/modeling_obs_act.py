@@ -14,6 +14,7 @@ from lerobot_obsbench.policies.env_passthrough import EnvObservationMixin
 from lerobot_obsbench.policies.model_card import ModelCardMixin
 from lerobot_obsbench.policies.obs_act.configuration_obs_act import ObsACTConfig
 from lerobot_obsbench.policies.observation_encoder import ObservationEncoder
+from lerobot_obsbench.spaces import CalibratedDepth
 
 ENCODER_PREFIX = "model.observation.encoder."
 
@@ -106,8 +107,10 @@ class ObsACTPolicy(ModelCardMixin, EnvObservationMixin, ACTPolicy):
 
     def __init__(self, config: ObsACTConfig, **kwargs):
         PreTrainedPolicy.__init__(self, config)
+        config.read_dataset_calibration(kwargs.get("dataset_meta"))
         config.validate_features()
         self.config = config
+        self.calibrated_depth = CalibratedDepth(config.depth_calibration)
         self.model = ObsACT(config, dataset_stats=kwargs.get("dataset_stats"))
         if config.temporal_ensemble_coeff is not None:
             self.temporal_ensembler = ACTTemporalEnsembler(config.temporal_ensemble_coeff, config.chunk_size)
@@ -117,6 +120,7 @@ class ObsACTPolicy(ModelCardMixin, EnvObservationMixin, ACTPolicy):
         """ACT's training loss: the action reconstruction error over non-padded steps, + KL weight x KL. "l1" is
         LeRobot 0.6's ACT (L1 averaged over the valid elements); "mse" the official code's (squared error with
         padded steps zeroed, averaged over all elements)."""
+        batch = self.calibrated_depth(batch)
         actions_hat, (mu, log_sigma_x2) = self.model(batch)
         valid = ~batch["action_is_pad"].unsqueeze(-1)
         if self.config.action_loss == "l1":

@@ -21,6 +21,7 @@ from lerobot_obsbench.policies.env_passthrough import EnvObservationMixin
 from lerobot_obsbench.policies.model_card import ModelCardMixin
 from lerobot_obsbench.policies.obs_diffusion.configuration_obs_diffusion import ObsDiffusionConfig
 from lerobot_obsbench.policies.observation_encoder import ObservationEncoder
+from lerobot_obsbench.spaces import CalibratedDepth
 
 
 class DiffusionTransformer(nn.Module):
@@ -124,11 +125,16 @@ class ObsDiffusionPolicy(ModelCardMixin, EnvObservationMixin, DiffusionPolicy):
 
     def __init__(self, config: ObsDiffusionConfig, **kwargs):
         PreTrainedPolicy.__init__(self, config)
+        config.read_dataset_calibration(kwargs.get("dataset_meta"))
         config.validate_features()
         self.config = config
+        self.calibrated_depth = CalibratedDepth(config.depth_calibration)
         self._queues = None
         self.diffusion = ObsDiffusionModel(config, dataset_stats=kwargs.get("dataset_stats"))
         self.reset()
+
+    def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, None]:
+        return super().forward(self.calibrated_depth(batch))
 
     def get_optim_params(self) -> list[dict]:
         """AdamW groups; with `optimizer_decay_exempt_1d`, biases and 1-D parameters without weight decay."""

@@ -1,0 +1,154 @@
+"""Camera calibration attached to a dataset: what turns LeRobot's own depth recordings into point clouds.
+
+LeRobot 0.6 records a RealSense's depth itself (`observation.images.<cam>_depth`, `info.is_depth_map`), but raw: in
+the depth camera's own pixels (not registered to colour), with no intrinsics, no depth→colour extrinsic and no
+camera pose. The plugin keeps what is missing in `meta/obsbench_cameras.json` beside LeRobot's own metadata (so a
+Hub push carries it), one entry per camera; `obsbench attach-calibration` writes it after the fact.
+
+A pure vocabulary module (NumPy and JSON only): the policies read the entries into their config, `spaces` registers
+the depth into the colour camera with them, `obsbench validate` checks them.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from lerobot_obsbench.schema import SchemaError
+
+CALIBRATION_FILE = Path("meta") / "obsbench_cameras.json"
+FORMAT_VERSION = 1
+RIGID_TOLERANCE = 1e-3  # |R R^T - I|, |det R - 1|: what float32 round trips of a real pose keep well inside
+
+
+@dataclass
+class CameraCalibration:
+    """One RGB-D camera as recorded: OpenCV conventions, metres, camera frames x right / y down / z forward."""
+
+    # Colour stream: (height, width) and 3x3 intrinsics K.
+    color_size: list[int]
+    color_intrinsics: list[list[float]]
+    # Depth stream: (height, width) and 3x3 intrinsics K (LeRobot 0.6 stores depth in these pixels).
+    depth_size: list[int]
+    depth_intrinsics: list[list[float]]
+    # 4x4 rigid transform from depth-camera coordinates to colour-camera coordinates (librealsense's
+    # depth->color extrinsics).
+    depth_to_color: list[list[float]]
+    # 4x4 rigid transform from colour-camera coordinates to the world (robot base / ChArUco board) frame, as
+    # `obsbench calibrate-cameras` measures it.
+    cam2world: list[list[float]]
+    # Millimetres per stored depth unit: LeRobot stores the RealSense's raw z16 values and calls them mm, which
+    # holds for the D400 family's default depth scale (1 mm); an L515 (0.25 mm) needs 0.25 here.
+    depth_unit_mm: float = 1.0
+    # Stored depth values at or below this are holes: LeRobot's depth video codec returns its `depth_min`
+    # (10 "mm" by default) where the camera measured nothing (0); images keep 0.
+    depth_min_mm: float = 0.0
+    # Where the values came from (a file, a recording, a camera serial), for the record.
+    source: str = field(default="")
+
+    def __post_init__(self) -> None:
+        self.check()
+
+    def check(self, where: str = "camera calibration") -> None:
+        problems = []
+        for name, shape in (
+            ("color_intrinsics", (3, 3)),
+            ("depth_intrinsics", (3, 3)),
+            ("depth_to_color", (4, 4)),
+            ("cam2world", (4, 4)),
+        ):
+            value = np.asarray(getattr(self, name), dtype=np.float64)
+            if value.shape != shape or not np.isfinite(value).all():
+                problems.append(f"{name} must be a finite {shape[0]}x{shape[1]} matrix, got shape {value.shape}")
+                continue
+            if shape == (3, 3) and not (value[0, 0] > 0 and value[1, 1] > 0 and value[2, 2] == 1):
+                problems.append(f"{name} must have fx, fy > 0 and K[2][2] = 1")
+            if shape == (4, 4) and _rigidity_error(value) > RIGID_TOLERANCE:
+                problems.append(f"{name} is not a rigid transform (rotation not orthonormal or last row not 0 0 0 1)")
+        for name in ("color_size", "depth_size"):
+            size = list(getattr(self, name))
+            if len(size) != 2 or not all(isinstance(v, int) and v > 0 for v in size):
+                problems.append(f"{name} must be [height, width] in pixels, got {size}")
+        if not (math.isfinite(self.depth_unit_mm) and self.depth_unit_mm > 0):
+            problems.append(f"depth_unit_mm must be > 0, got {self.depth_unit_mm}")
+        if not (math.isfinite(self.depth_min_mm) and self.depth_min_mm >= 0):
+            problems.append(f"depth_min_mm must be >= 0, got {self.depth_min_mm}")
+        if problems:
+            raise SchemaError(f"{where}: " + "; ".join(problems) + ".")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, values: dict, where: str = "camera calibration") -> CameraCalibration:
+        names = set(cls.__dataclass_fields__)
+        unknown, missing = set(values) - names, {n for n in names if n not in values} - _OPTIONAL
+        if unknown or missing:
+            raise SchemaError(
+                f"{where}: "
+                + "; ".join(
+                    part
+                    for part in (
+                        f"unknown fields {sorted(unknown)}" if unknown else "",
+                        f"missing fields {sorted(missing)}" if missing else "",
+                    )
+                    if part
+                )
+                + f" (fields: {', '.join(sorted(names))})."
+            )
+        try:
+            return cls(**values)
+        except (TypeError, ValueError) as err:
+            if isinstance(err, SchemaError):
+                raise SchemaError(f"{where}: {str(err).removeprefix('camera calibration: ')}") from None
+            raise SchemaError(f"{where}: {err}") from None
+
+
+_OPTIONAL = {"depth_unit_mm", "depth_min_mm", "source"}
+
+
+def _rigidity_error(transform: np.ndarray) -> float:
+    rotation = transform[:3, :3]
+    orthonormal = np.abs(rotation @ rotation.T - np.eye(3)).max()
+    determinant = abs(np.linalg.det(rotation) - 1)
+    last_row = np.abs(transform[3] - np.array([0.0, 0.0, 0.0, 1.0])).max()
+    return float(max(orthonormal, determinant, last_row))
+
+
+def calibration_path(root: str | Path) -> Path:
+    return Path(root) / CALIBRATION_FILE
+
+
+def read_calibration(root: str | Path) -> dict[str, CameraCalibration]:
+    """The cameras calibrated in the dataset at `root` ({} when the file does not exist)."""
+    path = calibration_path(root)
+    if not path.is_file():
+        return {}
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise SchemaError(
+            f"{path}: not valid JSON ({err}); write it again with `obsbench attach-calibration`."
+        ) from None
+    if not isinstance(data, dict) or not isinstance(data.get("cameras"), dict):
+        raise SchemaError(f"{path}: expected {{'version': 1, 'cameras': {{name: calibration}}}}.")
+    return {
+        cam: CameraCalibration.from_dict(values, where=f"{path} camera {cam!r}")
+        for cam, values in data["cameras"].items()
+    }
+
+
+def write_calibration(root: str | Path, cameras: dict[str, CameraCalibration]) -> Path:
+    """Add or replace `cameras` in the dataset's calibration file (others are kept); written atomically."""
+    path = calibration_path(root)
+    merged = {cam: calib.to_dict() for cam, calib in read_calibration(root).items()}
+    merged.update({cam: calib.to_dict() for cam, calib in cameras.items()})
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps({"version": FORMAT_VERSION, "cameras": merged}, indent=1) + "\n")
+    os.replace(tmp, path)
+    return path

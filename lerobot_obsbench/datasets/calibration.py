@@ -1,0 +1,152 @@
+"""`obsbench attach-calibration`: make a dataset recorded by stock `lerobot-record` (a RealSense with
+`use_depth: true`) usable by every observation space, by writing its cameras' calibration into the dataset's
+`meta/obsbench_cameras.json` (see `camera_calibration`).
+
+The depth and colour intrinsics and the depth->colour extrinsic come from the camera itself (`--serial`, the
+streams at the dataset's resolutions), from a RealSense recording of it (`--from-recording`, a .bag of the same
+streams), or from a JSON file of `CameraCalibration` fields (`--from-json`); cam2world from `obsbench
+calibrate-cameras` (`--cam2world`, its saved file or a plain 4x4 JSON matrix). Sizes are checked against the
+dataset's features, and the depth codec's hole value is read from them.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from lerobot_obsbench.camera_calibration import CameraCalibration, calibration_path, write_calibration
+from lerobot_obsbench.schema import (
+    SchemaError,
+    image_key,
+    is_stock_depth,
+    stock_depth_cameras,
+    stock_depth_key,
+)
+
+SOURCES = ("from_json", "from_recording", "serial")
+
+
+def _features(root: Path) -> dict:
+    info = root / "meta" / "info.json"
+    if not info.is_file():
+        raise FileNotFoundError(f"{root} is not a LeRobot dataset (no meta/info.json)")
+    return json.loads(info.read_text())["features"]
+
+
+def _size(feature: dict) -> list[int]:
+    shape = list(feature["shape"])
+    return shape[:2] if shape[-1] in (1, 3) else shape[1:]  # (H, W, C) as LeRobot records, else (C, H, W)
+
+
+def realsense_streams(recording: str | Path | None = None, serial: str | None = None, sizes=None) -> dict:
+    """Intrinsics, depth->colour extrinsic and depth unit of a RealSense (by serial) or of a .bag recording, as
+    `CameraCalibration` fields (without cam2world). `sizes` = (colour (H, W), depth (H, W)) asks a live camera for
+    those stream resolutions; a recording gives the ones it holds."""
+    from lerobot_obsbench.robots.realsense.realsense_rgbd import import_realsense, pinhole_K
+
+    rs = import_realsense()
+    pipeline, config = rs.pipeline(), rs.config()
+    if recording is not None:
+        if not Path(recording).is_file():
+            raise FileNotFoundError(f"--from-recording {recording}: no such file")
+        config.enable_device_from_file(str(recording), repeat_playback=False)
+    else:
+        config.enable_device(serial)
+        (ch, cw), (dh, dw) = sizes
+        config.enable_stream(rs.stream.color, cw, ch, rs.format.rgb8, 30)
+        config.enable_stream(rs.stream.depth, dw, dh, rs.format.z16, 30)
+    try:
+        profile = pipeline.start(config)
+    except RuntimeError as err:
+        what = f"recording {recording}" if recording is not None else f"RealSense {serial}"
+        raise SchemaError(f"cannot open the {what}: {err} (`obsbench find-cameras` lists connected cameras)") from None
+    try:
+        color = profile.get_stream(rs.stream.color).as_video_stream_profile()
+        depth = profile.get_stream(rs.stream.depth).as_video_stream_profile()
+        extrinsics = depth.get_extrinsics_to(color)
+        depth_to_color = np.eye(4)
+        depth_to_color[:3, :3] = np.asarray(extrinsics.rotation, dtype=np.float64).reshape(3, 3).T  # column-major
+        depth_to_color[:3, 3] = extrinsics.translation
+        scale = profile.get_device().first_depth_sensor().get_depth_scale()
+        ci, di = color.get_intrinsics(), depth.get_intrinsics()
+        return {
+            "color_size": [ci.height, ci.width],
+            "color_intrinsics": pinhole_K(ci).tolist(),
+            "depth_size": [di.height, di.width],
+            "depth_intrinsics": pinhole_K(di).tolist(),
+            "depth_to_color": depth_to_color.tolist(),
+            "depth_unit_mm": float(scale) * 1000.0,
+        }
+    finally:
+        pipeline.stop()
+
+
+def read_cam2world(path: str | Path) -> list[list[float]]:
+    """A camera pose from `obsbench calibrate-cameras`' saved file (its `cam2world`) or a plain 4x4 JSON matrix."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"--cam2world {path}: no such file (`obsbench calibrate-cameras` writes it)")
+    data = json.loads(path.read_text())
+    matrix = data.get("cam2world") if isinstance(data, dict) else data
+    if np.asarray(matrix, dtype=object).shape != (4, 4):
+        raise SchemaError(f"--cam2world {path}: expected a 4x4 matrix or an object with 'cam2world' (4x4)")
+    return [[float(v) for v in row] for row in matrix]
+
+
+def attach_calibration(
+    root: str | Path,
+    camera: str,
+    from_json: str | Path | None = None,
+    from_recording: str | Path | None = None,
+    serial: str | None = None,
+    cam2world: str | Path | None = None,
+) -> tuple[Path, CameraCalibration]:
+    """Write camera `camera`'s calibration into the dataset at `root`; returns the file and what was written."""
+    root = Path(root)
+    features = _features(root)
+    depth_feature = features.get(stock_depth_key(camera))
+    if depth_feature is None or not is_stock_depth(stock_depth_key(camera), depth_feature):
+        recorded = [
+            k.removeprefix(IMAGE_PREFIX).removesuffix("_depth") for k, ft in features.items() if is_stock_depth(k, ft)
+        ]
+        raise SchemaError(
+            f"--camera {camera}: the dataset has no LeRobot depth feature {stock_depth_key(camera)} "
+            f"(cameras recorded with depth: {', '.join(recorded) or 'none'}); record with the RealSense's "
+            "use_depth: true."
+        )
+    if sum(source is not None for source in (from_json, from_recording, serial)) != 1:
+        raise SchemaError("give exactly one of --from-json FILE, --from-recording FILE.bag, --serial SERIAL")
+    sizes = [_size(features[image_key(camera)]) if image_key(camera) in features else _size(depth_feature)]
+    sizes.append(_size(depth_feature))
+    if from_json is not None:
+        if not Path(from_json).is_file():
+            raise FileNotFoundError(f"--from-json {from_json}: no such file")
+        values = json.loads(Path(from_json).read_text())
+        if not isinstance(values, dict):
+            raise SchemaError(f"--from-json {from_json}: expected an object of CameraCalibration fields")
+        source = f"file {from_json}"
+    else:
+        values = realsense_streams(from_recording, serial, sizes)
+        source = f"recording {from_recording}" if from_recording is not None else f"RealSense {serial}"
+    values = {"color_size": sizes[0], "depth_size": sizes[1], **values}
+    if cam2world is not None:
+        values["cam2world"] = read_cam2world(cam2world)
+    if "cam2world" not in values:
+        raise SchemaError("the camera pose is missing: --cam2world FILE (from `obsbench calibrate-cameras`)")
+    info = depth_feature.get("info") or {}
+    if depth_feature["dtype"] == "video":
+        values.setdefault("depth_min_mm", float(info.get("video.depth_min", 0.0)) * 1000.0)
+    values.setdefault("source", source)
+    calibration = CameraCalibration.from_dict(values, where=f"calibration of camera {camera!r}")
+    for name, recorded in (("color_size", sizes[0]), ("depth_size", sizes[1])):
+        if list(getattr(calibration, name)) != list(recorded):
+            raise SchemaError(
+                f"calibration of camera {camera!r}: {name} {getattr(calibration, name)} but the dataset records "
+                f"{recorded}; calibrate the camera at the resolution it recorded at."
+            )
+    return write_calibration(root, {camera: calibration}), calibration
+
+
+__all__ = ["attach_calibration", "calibration_path", "read_cam2world", "realsense_streams"]
