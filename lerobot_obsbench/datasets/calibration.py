@@ -108,9 +108,7 @@ def attach_calibration(
     features = _features(root)
     depth_feature = features.get(stock_depth_key(camera))
     if depth_feature is None or not is_stock_depth(stock_depth_key(camera), depth_feature):
-        recorded = [
-            k.removeprefix(IMAGE_PREFIX).removesuffix("_depth") for k, ft in features.items() if is_stock_depth(k, ft)
-        ]
+        recorded = stock_depth_cameras(features)
         raise SchemaError(
             f"--camera {camera}: the dataset has no LeRobot depth feature {stock_depth_key(camera)} "
             f"(cameras recorded with depth: {', '.join(recorded) or 'none'}); record with the RealSense's "
