@@ -31,6 +31,7 @@ import logging
 from importlib import metadata
 
 import datasets
+import numpy as np
 import PIL.Image
 import torch
 from datasets.formatting import _register_formatter
@@ -52,6 +53,14 @@ class LeRobotTorchFormatter(TorchFormatter):
     def _tensorize(self, value):
         if isinstance(value, PIL.Image.Image):
             return pil_to_chw_tensor(value)  # LeRobot's own: RGB (C,H,W) float in [0,1], 16-bit depth float32
+        if isinstance(value, (np.ndarray, np.number)) and value.dtype.kind in "iuf":
+            # TorchFormatter's own rules (integers -> int64, uint16/32 widened first; floats -> float32), without the
+            # import attempts it makes for every value (a failing torchvision import: ~50 us each, per array)
+            if value.dtype.kind == "f":
+                return torch.tensor(value, dtype=torch.float32)
+            if value.dtype in (np.uint16, np.uint32):
+                value = value.astype(np.int64)
+            return torch.tensor(value, dtype=torch.int64)
         return super()._tensorize(value)
 
     def _per_row(self, column):
