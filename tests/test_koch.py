@@ -138,6 +138,27 @@ def test_single_arm_follower_takes_a_stock_koch_leader(fake_bus, tmp_path):
     assert sent == {f"{m}.pos": pytest.approx(v) for m, v in leader_script(0.5)(0).items()}
 
 
+def test_one_source_of_depth_per_camera(fake_bus, tmp_path):
+    """LeRobot 0.6's Koch follower adds `<cam>_depth` for a camera with use_depth; the plugin's follower records
+    depth through its RGB-D camera type only (registered, with K and pose) and says so for a stock one."""
+    from lerobot.cameras.realsense import RealSenseCameraConfig
+
+    from lerobot_obsbench.robots.realsense.config_realsense_rgbd import RealSenseRGBDCameraConfig
+
+    rgbd = RealSenseRGBDCameraConfig(serial_number="1", width=80, height=60, downsample=1)
+    robot = make_robot_from_config(KochRGBDFollowerConfig(port="/dev/fake5", cameras={"front": rgbd}))
+    assert {k for k in robot.observation_features if k.startswith("front")} == {
+        "front",
+        "front.depth",
+        "front.intrinsics",
+        "front.cam2world",
+    }
+    stock = RealSenseCameraConfig(serial_number_or_name="1", width=80, height=60, fps=30, use_depth=True)
+    robot = make_robot_from_config(KochRGBDFollowerConfig(port="/dev/fake5", cameras={"front": stock}))
+    with pytest.raises(ValueError, match="obsbench_realsense_rgbd .*obsbench attach-calibration"):
+        robot.observation_features  # noqa: B018
+
+
 def test_robot_cameras_must_be_calibrated(fake_bus, tmp_path, synthetic_module):
     from lerobot_obsbench.robots.realsense.config_realsense_rgbd import RealSenseRGBDCameraConfig
     from tests.test_real_robot import write_scene_bag

@@ -36,6 +36,14 @@ def camera_features(configs: dict[str, CameraConfig]) -> dict[str, tuple]:
             features[name + DEPTH_SUFFIX] = (h, w, 1)
             features[name + INTRINSICS_SUFFIX] = (3, 3)
             features[name + CAM2WORLD_SUFFIX] = (4, 4)
+        elif getattr(cfg, "use_depth", False):
+            # LeRobot 0.6's own depth (`<cam>_depth`: unregistered, no K or pose) beside the schema's would be two
+            # sources of depth for one camera
+            raise ValueError(
+                f"camera {name!r}: {cfg.type} with use_depth=true records LeRobot's own unregistered depth; in the "
+                "plugin's robots use type obsbench_realsense_rgbd (depth aligned to colour, K and cam2world), or "
+                "record with LeRobot's koch_follower and `obsbench attach-calibration` afterwards"
+            )
         else:
             features[name] = (cfg.height, cfg.width, 3)
     return features
