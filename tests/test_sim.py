@@ -491,7 +491,7 @@ def test_lerobot_train_named_policy_on_named_env_end_to_end(demos, tmp_path):
         "--policy.type=act_pcd",
         "--env.type=obsbench_pickcube",
         f"--env.image_size={SIZE}",
-        "--eval_freq=4",
+        "--env_eval_freq=4",
         "--eval.n_episodes=1",
         "--eval.batch_size=1",
     )
