@@ -5,11 +5,14 @@
   12-bit log-quantised lossless video (LeRobot's default depth encoder);
 - `lerobot_tiff`: the same feature as 16-bit images in the parquet files (`--dataset.video=false` for depth).
 
-Colour is the same AV1 video in all three. Measured per storage: bytes on disk of the depth alone (the dataset
-minus an identical one without depth), read time of one training sample (ACT: 100-action chunk; Diffusion: two
-observation steps) through `LeRobotDataset` with the plugin's loading fix, the registration step that LeRobot's
-layout needs before a policy can use it (`spaces.CalibratedDepth`), and the depth error against the scene's exact
-(float) depth, in millimetres, over the pixels that have a return; plus whether holes stay holes.
+Colour is the same AV1 video in all three. Two versions of the scene: `clean` (the ray-cast depth, as a simulator
+gives it) and `sensor` (RealSense-like noise, sigma = `--noise-mm` x z² with z in metres, and `--dropout` of the
+pixels as holes: what compresses like real recordings). Measured per storage: bytes on disk of the depth alone
+(the dataset minus an identical one without depth), read time of one training sample (ACT: 100-action chunk;
+Diffusion: two observation steps) through `LeRobotDataset` with the plugin's loading fix, the registration step
+that LeRobot's layout needs before a policy can use it (`spaces.CalibratedDepth`), the codec's error (decoded vs
+the millimetres written) and the error against the scene's exact (float) depth, over the pixels with a return;
+plus whether returns and holes survive.
 
     .venv/bin/python -m benchmarks.bench_depth_storage [--size 128] [--episodes 4] [--frames 50]
 """
@@ -46,7 +49,7 @@ def features(storage: str, size: int, base: dict) -> dict:
     return feats
 
 
-def scenes(synthetic, episodes: int, frames: int, size: int, seed: int = 0):
+def scenes(synthetic, episodes: int, frames: int, size: int, noise_mm: float = 0.0, dropout: float = 0.0, seed=0):
     """Per frame: the stored fields (colour, uint16 mm depth, K, pose, state, action) and the exact depth (m)."""
     rng = np.random.default_rng(seed)
     K = synthetic.intrinsics(size)
@@ -61,6 +64,10 @@ def scenes(synthetic, episodes: int, frames: int, size: int, seed: int = 0):
             ]
             rgb, depth, points = synthetic.render(K, cam2world, size, boxes)
             exact = np.nan_to_num((points @ world2cam[:3, :3].T + world2cam[:3, 3])[..., 2], nan=0.0)
+            if noise_mm or dropout:
+                noisy = exact * 1000 + rng.normal(0.0, 1.0, exact.shape) * noise_mm * exact**2
+                noisy[rng.random(exact.shape) < dropout] = 0
+                depth = np.where(exact > 0, np.clip(np.round(noisy), 0, 65535), 0).astype(np.uint16)[..., None]
             state = np.concatenate([rng.normal(0, 0.1, 7), [1.0], ee, synthetic.quat_z(yaw)]).astype(np.float32)
             stored = {
                 f"observation.images.{CAM}": rgb,
@@ -102,68 +109,89 @@ def read_depth_mm(ds: LeRobotDataset, storage: str, index: int) -> np.ndarray:
     return item[f"observation.images.{CAM}_depth"][0].numpy().astype(np.float64)
 
 
+def measure(roots: dict, episodes: list, size: int, calib: dict) -> dict:
+    exact = np.stack([e for frames in episodes for _, e in frames])
+    written = np.stack([stored["depth"][..., 0] for frames in episodes for stored, _ in frames]).astype(np.float64)
+    without_depth = disk_bytes(roots["no_depth"])
+    results = {}
+    for storage in STORAGES[:3]:
+        root = roots[storage]
+        depth_key = f"observation.depth.{CAM}" if storage == "plugin_array" else f"observation.images.{CAM}_depth"
+        plain = LeRobotDataset("local/bench", root=root)
+        decoded = np.stack([read_depth_mm(plain, storage, i) for i in range(len(plain))])
+        if storage == "lerobot_video":  # the codec's hole value, masked as the plugin does
+            decoded = np.where(decoded <= 10.5, 0.0, decoded)
+        returns, holes = written > 0, written == 0
+        both = returns & (decoded > 0)
+        codec = np.abs(decoded - written)[both]
+        total = np.abs(decoded - exact * 1000)[both]
+        timings = {}
+        for name, deltas in (
+            ("act_chunk", {"action": [i / 10 for i in range(100)]}),
+            ("diffusion_history", {"action": [i / 10 for i in range(-1, 15)], depth_key: [-0.1, 0.0]}),
+        ):
+            ds = LeRobotDataset("local/bench", root=root, delta_timestamps=deltas)
+            indices = iter(range(7, 100_000, 13))
+            timings[name] = timed(lambda ds=ds, i=indices: ds[next(i) % len(ds)], repeats=30)
+        entry = {
+            "depth_bytes_per_frame": round((disk_bytes(root) - without_depth) / len(plain)),
+            "read_ms": {k: v["median_ms"] for k, v in timings.items()},
+            "codec_error_mm": {"median": round(float(np.median(codec)), 3), "max": round(float(codec.max()), 3)},
+            "error_vs_exact_mm": {
+                "median": round(float(np.median(total)), 3),
+                "p99": round(float(np.percentile(total, 99)), 3),
+            },
+            "returns_kept": round(float((decoded[returns] > 0).mean()), 5),
+            "holes_kept": round(float((decoded[holes] == 0).mean()), 5) if holes.any() else None,
+        }
+        if storage != "plugin_array":
+            register = CalibratedDepth(calib)
+            sample = {depth_key: torch.as_tensor(decoded[:1, None], dtype=torch.float32)}
+            entry["register_ms_per_frame"] = timed(lambda r=register, s=sample: r(s), repeats=30)["median_ms"]
+        results[storage] = entry
+    return results
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--size", type=int, default=128)
     parser.add_argument("--episodes", type=int, default=4)
     parser.add_argument("--frames", type=int, default=50)
+    parser.add_argument("--noise-mm", type=float, default=1.0, help="sensor scene: noise sigma at 1 m, mm")
+    parser.add_argument("--dropout", type=float, default=0.02, help="sensor scene: fraction of pixels without return")
     parser.add_argument("--out", type=Path)
     args = parser.parse_args()
     synthetic = load_synthetic()
     base = synthetic.features(args.size, CAM, use_video=True)
-    episodes = list(scenes(synthetic, args.episodes, args.frames, args.size))
-    exact = np.stack([e for frames in episodes for _, e in frames])
-    results: dict = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        roots = {s: write_storage(Path(tmp) / s, s, episodes, base, args.size) for s in STORAGES}
-        without_depth = disk_bytes(roots["no_depth"])
-        calib = {
-            CAM: {
-                "color_size": [args.size] * 2,
-                "color_intrinsics": synthetic.intrinsics(args.size).tolist(),
-                "depth_intrinsics": synthetic.intrinsics(args.size).tolist(),
-                "depth_to_color": np.eye(4).tolist(),
-                "cam2world": np.eye(4).tolist(),
-                "depth_min_mm": 10.0,
-            }
+    K = synthetic.intrinsics(args.size).tolist()
+    calib = {
+        CAM: {
+            "color_size": [args.size] * 2,
+            "color_intrinsics": K,
+            "depth_intrinsics": K,
+            "depth_to_color": np.eye(4).tolist(),
+            "cam2world": np.eye(4).tolist(),
+            "depth_min_mm": 10.0,
         }
-        for storage in STORAGES[:3]:
-            root = roots[storage]
-            depth_key = f"observation.depth.{CAM}" if storage == "plugin_array" else f"observation.images.{CAM}_depth"
-            plain = LeRobotDataset("local/bench", root=root)
-            decoded = np.stack([read_depth_mm(plain, storage, i) for i in range(len(plain))])
-            if storage == "lerobot_video":  # the codec's hole value, masked as the plugin does
-                decoded = np.where(decoded <= 10.5, 0.0, decoded)
-            returns, holes = exact > 0, exact == 0
-            error = np.abs(decoded - exact * 1000)[returns & (decoded > 0)]
-            timings = {}
-            for name, deltas in (
-                ("act_chunk", {"action": [i / 10 for i in range(100)]}),
-                ("diffusion_history", {"action": [i / 10 for i in range(-1, 15)], depth_key: [-0.1, 0.0]}),
-            ):
-                ds = LeRobotDataset("local/bench", root=root, delta_timestamps=deltas)
-                indices = iter(range(7, 100_000, 13))
-                timings[name] = timed(lambda ds=ds, i=indices: ds[next(i) % len(ds)], repeats=30)
-            entry = {
-                "depth_bytes_per_frame": round((disk_bytes(root) - without_depth) / len(plain)),
-                "read_ms": {k: v["median_ms"] for k, v in timings.items()},
-                "depth_error_mm": {
-                    "median": round(float(np.median(error)), 3),
-                    "p99": round(float(np.percentile(error, 99)), 3),
-                    "max": round(float(error.max()), 3),
-                },
-                "returns_kept": round(float((decoded[returns] > 0).mean()), 5),
-                "holes_kept": round(float((decoded[holes] == 0).mean()), 5) if holes.any() else None,
-            }
-            if storage != "plugin_array":
-                register = CalibratedDepth(calib)
-                sample = {depth_key: torch.as_tensor(decoded[:1, None], dtype=torch.float32)}
-                entry["register_ms_per_frame"] = timed(lambda r=register, s=sample: r(s), repeats=30)["median_ms"]
-            results[storage] = entry
-            print(storage, entry)
+    }
+    results: dict = {}
+    for scene, noise, dropout in (("clean", 0.0, 0.0), ("sensor", args.noise_mm, args.dropout)):
+        episodes = list(scenes(synthetic, args.episodes, args.frames, args.size, noise, dropout))
+        with tempfile.TemporaryDirectory() as tmp:
+            roots = {s: write_storage(Path(tmp) / s, s, episodes, base, args.size) for s in STORAGES}
+            results[scene] = measure(roots, episodes, args.size, calib)
+        for storage, entry in results[scene].items():
+            print(scene, storage, entry)
+    frames = args.episodes * args.frames
     write(
         "depth_storage",
-        {"image_size": args.size, "frames": int(exact.shape[0]), "results": results},
+        {
+            "image_size": args.size,
+            "frames": frames,
+            "sensor_noise_mm_at_1m": args.noise_mm,
+            "sensor_dropout": args.dropout,
+            "results": results,
+        },
         args.out,
     )
 
