@@ -44,12 +44,13 @@ test-fast: $(STAMP)
 # Speed benchmarks (write JSON under benchmarks/results/).
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.bench_loading
+	$(BIN)/python -m benchmarks.bench_depth_storage
 	$(BIN)/python -m benchmarks.bench_preprocess
 	$(BIN)/python -m benchmarks.bench_train_step
 	$(BIN)/python -m benchmarks.bench_env
 	$(BIN)/python -m benchmarks.bench_encoders
 	$(BIN)/python -m benchmarks.bench_recording
-	$(BIN)/python -m benchmarks.bench_latency --baseline ca85b22
+	$(BIN)/python -m benchmarks.bench_latency
 
 clean:
 	rm -rf outputs .pytest_cache
