@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -235,3 +237,18 @@ def test_perturbation_names_round_trip():
     for text in ("camera_yaw:5", "light:0.03", "background:1,0.2,0.2", "noise:16"):
         assert parse_perturbation(text).name == text
     assert parse_perturbation("none") is None
+
+
+def test_training_progress_reads_the_total_loss_of_lerobot_061_logs(tmp_path):
+    """LeRobot 0.6.1 logs the loss terms after the total (`loss:0.130 ... l1_loss:0.130 kld_loss:0.000`): the
+    progress line shows the total."""
+    from lerobot_obsbench.bench.units import training_progress
+
+    run = tmp_path / "runs" / "r1"
+    run.mkdir(parents=True)
+    (run / "progress.json").write_text(json.dumps({"resumed_from": 0, "steps": 2000, "started": 0.0}))
+    (run / "train.log").write_text(
+        "Training:  96%|#########6| 1920/2000 [03:21<00:10,  7.60step/s]INFO ot_train.py:641 step:2K smpl:31K "
+        "loss:0.130 grdn:0.511 lr:8.4e-06 l1_loss:0.129 kld_loss:0.000\n"
+    )
+    assert training_progress(tmp_path, "r1") == {"step": 1920, "steps": 2000, "loss": 0.13, "started": 0.0}

@@ -244,7 +244,7 @@ def training_progress(out_dir: Path, run_id: str) -> dict | None:
     except (OSError, ValueError):
         return None
     counts = re.findall(r"\| *(\d+)/(\d+) \[", tail)
-    losses = re.findall(r"loss:([0-9.eE+-]+)", tail)
+    losses = re.findall(r"(?<!\w)loss:([0-9.eE+-]+)", tail)  # the total, not l1_loss / kld_loss after it
     step = info["resumed_from"] + (int(counts[-1][0]) if counts else 0)
     return {
         "step": step,
