@@ -177,3 +177,24 @@ def test_stock_lerobot_train_on_a_stock_depth_dataset(calibrated, tmp_path, poli
     config = json.loads((tmp_path / "run/checkpoints/last/pretrained_model/config.json").read_text())
     assert config["type"] == policy_type and config["cameras"] == ["front"]
     assert config["depth_calibration"]["front"]["depth_to_color"] == scene.DEPTH_TO_COLOR.tolist()
+
+
+def test_a_checkpoint_keeps_the_calibration_it_was_trained_with(calibrated, tmp_path):
+    """Saved in config.json and read back by LeRobot's loader: a loaded policy registers depth with no dataset."""
+    from lerobot_obsbench.policies.loading import load_policy
+
+    policy, pre, post, dataset = training_setup(
+        "obs_act", "pointcloud", calibrated, named="act_pcd", workspace=WORKSPACE
+    )
+    for part in (policy, pre, post):
+        part.save_pretrained(tmp_path / "ckpt")
+    loaded, loaded_pre, _ = load_policy(tmp_path / "ckpt")
+    assert loaded.config.depth_calibration == policy.config.depth_calibration
+    for p in (policy, loaded):
+        p.eval()
+        p.reset()
+    sample = {k: v[None] for k, v in dataset[0].items() if isinstance(v, torch.Tensor) and k.startswith("observation.")}
+    with torch.no_grad():
+        torch.testing.assert_close(
+            loaded.select_action(loaded_pre(dict(sample))), policy.select_action(pre(dict(sample)))
+        )
