@@ -5,8 +5,8 @@ the depth camera's own pixels (not registered to colour), with no intrinsics, no
 camera pose. The plugin keeps what is missing in `meta/obsbench_cameras.json` beside LeRobot's own metadata (so a
 Hub push carries it), one entry per camera; `obsbench attach-calibration` writes it after the fact.
 
-A pure vocabulary module (NumPy and JSON only): the policies read the entries into their config, `spaces` registers
-the depth into the colour camera with them, `obsbench validate` checks them.
+The policies read the entries into their config (`spaces.CalibratedDepth` registers the depth into the colour camera
+with them), `obsbench validate` checks them.
 """
 
 from __future__ import annotations
@@ -18,12 +18,14 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+import torch
 
+from lerobot_obsbench.geometry import rigidity_error
 from lerobot_obsbench.schema import SchemaError
+from lerobot_obsbench.spaces import RIGID_TOLERANCE
 
 CALIBRATION_FILE = Path("meta") / "obsbench_cameras.json"
 FORMAT_VERSION = 1
-RIGID_TOLERANCE = 1e-3  # |R R^T - I|, |det R - 1|: what float32 round trips of a real pose keep well inside
 
 
 @dataclass
@@ -54,7 +56,7 @@ class CameraCalibration:
     def __post_init__(self) -> None:
         self.check()
 
-    def check(self, where: str = "camera calibration") -> None:
+    def check(self) -> None:
         problems = []
         for name, shape in (
             ("color_intrinsics", (3, 3)),
@@ -68,7 +70,7 @@ class CameraCalibration:
                 continue
             if shape == (3, 3) and not (value[0, 0] > 0 and value[1, 1] > 0 and value[2, 2] == 1):
                 problems.append(f"{name} must have fx, fy > 0 and K[2][2] = 1")
-            if shape == (4, 4) and _rigidity_error(value) > RIGID_TOLERANCE:
+            if shape == (4, 4) and float(rigidity_error(torch.from_numpy(value))) > RIGID_TOLERANCE:
                 problems.append(f"{name} is not a rigid transform (rotation not orthonormal or last row not 0 0 0 1)")
         for name in ("color_size", "depth_size"):
             size = list(getattr(self, name))
@@ -79,7 +81,7 @@ class CameraCalibration:
         if not (math.isfinite(self.depth_min_mm) and self.depth_min_mm >= 0):
             problems.append(f"depth_min_mm must be >= 0, got {self.depth_min_mm}")
         if problems:
-            raise SchemaError(f"{where}: " + "; ".join(problems) + ".")
+            raise SchemaError("camera calibration: " + "; ".join(problems) + ".")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -110,14 +112,6 @@ class CameraCalibration:
 
 
 _OPTIONAL = {"depth_unit_mm", "depth_min_mm", "source"}
-
-
-def _rigidity_error(transform: np.ndarray) -> float:
-    rotation = transform[:3, :3]
-    orthonormal = np.abs(rotation @ rotation.T - np.eye(3)).max()
-    determinant = abs(np.linalg.det(rotation) - 1)
-    last_row = np.abs(transform[3] - np.array([0.0, 0.0, 0.0, 1.0])).max()
-    return float(max(orthonormal, determinant, last_row))
 
 
 def calibration_path(root: str | Path) -> Path:

@@ -52,8 +52,8 @@ def register_depth(
     2. refine (`steps` fixed-point iterations): for each colour pixel, the point at depth z on its ray is moved
        into the depth camera and the depth map is interpolated bilinearly where it lands; z is updated so that the
        point lies on that interpolated surface. Pixels whose four depth neighbours are not one surface (a jump of
-       more than 2% of the depth: occlusion edges) or whose final residual exceeds `tolerance` metres keep their
-       splatted value (or stay 0 when they had none)."""
+       more than 2% of the depth: occlusion edges) or whose final residual exceeds `tolerance` metres are 0: the
+       splatted value there is off by up to half a pixel's footprint, so it is dropped rather than kept."""
     b, hd, wd = depth.shape
     h, w = size
     dtype, device = depth.dtype, depth.device
@@ -69,7 +69,6 @@ def register_depth(
     far = torch.full((b * h * w,), float("inf"), dtype=dtype, device=device)
     splat = far.scatter_reduce(0, pixel[valid], z[valid], reduce="amin").reshape(b, 1, h, w)
     start = torch.where(torch.isinf(splat), -torch.nn.functional.max_pool2d(-splat, 3, 1, 1), splat)[:, 0]
-    splat = torch.where(torch.isinf(splat[:, 0]), torch.zeros_like(start), splat[:, 0])
     started = torch.isfinite(start)
     z_c = torch.where(started, start, torch.ones_like(start))
     # 2. refine: the colour ray's point z * ray, in depth-camera coordinates, is z * q + t

@@ -11,6 +11,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from scripts import make_synthetic_dataset as synthetic
+
 SPHERE_CENTRE = np.array([0.0, 0.02, 0.06])
 SPHERE_RADIUS = 0.06
 SPHERE_RGB = (230, 20, 20)
@@ -20,20 +22,7 @@ K_COLOR = np.array([[112.0, 0, 63.2], [0, 111.0, 47.9], [0, 0, 1]])
 K_DEPTH = np.array([[101.0, 0, 60.4], [0, 100.5, 44.1], [0, 0, 1]])
 
 
-def look_at(eye, target) -> np.ndarray:
-    """OpenCV camera (x right, y down, z forward) -> world, at `eye` looking at `target` (world z up)."""
-    forward = np.asarray(target, float) - np.asarray(eye, float)
-    forward /= np.linalg.norm(forward)
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    down = np.cross(forward, right)
-    pose = np.eye(4)
-    pose[:3, :3] = np.stack([right, down, forward], axis=1)
-    pose[:3, 3] = eye
-    return pose
-
-
-CAM2WORLD = look_at([0.42, -0.05, 0.40], [0.0, 0.02, 0.03])
+CAM2WORLD = synthetic.look_at([0.42, -0.05, 0.40], [0.0, 0.02, 0.03])
 DEPTH_TO_COLOR = np.eye(4)  # a RealSense-like extrinsic with a rotation and an offset, not a pure x-baseline
 DEPTH_TO_COLOR[:3, :3] = Rotation.from_euler("xyz", [0.5, -1.0, 0.3], degrees=True).as_matrix()
 DEPTH_TO_COLOR[:3, 3] = [0.015, 0.001, 0.002]

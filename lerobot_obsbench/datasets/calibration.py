@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lerobot_obsbench.camera_calibration import CameraCalibration, calibration_path, write_calibration
+from lerobot_obsbench.camera_calibration import CameraCalibration, write_calibration
 from lerobot_obsbench.schema import (
     SchemaError,
     image_key,
@@ -24,8 +24,6 @@ from lerobot_obsbench.schema import (
     stock_depth_cameras,
     stock_depth_key,
 )
-
-SOURCES = ("from_json", "from_recording", "serial")
 
 
 def _features(root: Path) -> dict:
@@ -145,6 +143,3 @@ def attach_calibration(
                 f"{recorded}; calibrate the camera at the resolution it recorded at."
             )
     return write_calibration(root, {camera: calibration}), calibration
-
-
-__all__ = ["attach_calibration", "calibration_path", "read_cam2world", "realsense_streams"]
