@@ -13,6 +13,8 @@ One LeRobotDataset stores raw sensor frames; every observation space is derived 
 | observation.cam2world.<cam>      | float32 (4, 4)         | OpenCV camera -> world                         |
 | observation.state                | float32 (D,)           | joints + gripper; last 7 = EE xyz + quat wxyz  |
 | observation.environment_state    | float32 (G,)           | task goal (optional)                           |
+| observation.privileged_state     | float32 (7 * O,)       | simulation only: the task's object poses, xyz + |
+|                                  |                        | quat wxyz each (the `state` oracle's input)    |
 | action                           | float32 (A,)           | e.g. pd_ee_delta_pose                          |
 """
 
@@ -36,7 +38,12 @@ DEPTH_IMAGE_SPACES = ("depth", "rgbd", "pointmap")  # image spaces with a depth 
 POINT_SPACES = ("pointcloud",)
 # The blind control (beyond the paper): the same proprioception and goal, no visual observation at all.
 BLIND_SPACES = ("none",)
-OBS_SPACES = (*IMAGE_SPACES, *POINT_SPACES, *BLIND_SPACES)
+# The oracle control (beyond the paper): the same policy given the simulator's object poses instead of a sensor,
+# an upper bound on what any observation can give. Only simulated demos record it.
+ORACLE_SPACES = ("state",)
+# Encoder-free controls that read no camera.
+CONTROL_SPACES = (*BLIND_SPACES, *ORACLE_SPACES)
+OBS_SPACES = (*IMAGE_SPACES, *POINT_SPACES, *CONTROL_SPACES)
 # Per-point features of a point cloud, with their channel counts.
 POINT_FEATURES = {"rgb+xyz": 6, "xyz": 3, "rgb": 3}
 # Frames point coordinates can be expressed in: world (robot base), the first camera, the end effector.
@@ -62,6 +69,10 @@ INTRINSICS_PREFIX = OBS_PREFIX + "intrinsics."
 CAM2WORLD_PREFIX = OBS_PREFIX + "cam2world."
 SENSOR_PREFIXES = (IMAGE_PREFIX, DEPTH_PREFIX, INTRINSICS_PREFIX, CAM2WORLD_PREFIX)
 EE_POSE_SIZE = 7  # xyz + quaternion (w, x, y, z)
+# The simulator's object poses (7 values per object); taken out of every policy's input features like the
+# sensors, so only the oracle reads it.
+PRIVILEGED_STATE_KEY = OBS_PREFIX + "privileged_state"
+POSE_SIZE = 7
 
 # Which per-camera sensors each observation space reads.
 SPACE_SENSORS: dict[str, tuple[str, ...]] = {
@@ -71,6 +82,7 @@ SPACE_SENSORS: dict[str, tuple[str, ...]] = {
     "pointmap": (IMAGE_PREFIX, DEPTH_PREFIX, INTRINSICS_PREFIX, CAM2WORLD_PREFIX),
     "pointcloud": (IMAGE_PREFIX, DEPTH_PREFIX, INTRINSICS_PREFIX, CAM2WORLD_PREFIX),
     "none": (),
+    "state": (),
 }
 
 
@@ -132,7 +144,9 @@ def sensor_keys(obs_space: str, cameras: list[str] | tuple[str, ...]) -> list[st
 
 
 def is_sensor_key(key: str) -> bool:
-    return key.startswith(SENSOR_PREFIXES)
+    """Whether a key is read by the observation adapter rather than LeRobot's normaliser: the per-camera sensors and
+    the oracle's privileged state."""
+    return key.startswith(SENSOR_PREFIXES) or key == PRIVILEGED_STATE_KEY
 
 
 def prefix_of(key: str) -> str:
@@ -242,6 +256,8 @@ def validate_features(
     space). Raises `SchemaError` naming every missing or mis-shaped key and how to fix it.
     """
     check_obs_space(obs_space)
+    if obs_space in ORACLE_SPACES and PRIVILEGED_STATE_KEY not in features:
+        raise SchemaError(ORACLE_HINT.format(obs_space=obs_space))
     needed = SPACE_SENSORS[obs_space]
     if not needed:
         return []
@@ -284,6 +300,13 @@ def validate_features(
             "--policy.cameras accordingly."
         )
     return list(cameras)
+
+
+ORACLE_HINT = (
+    f"obs_space={{obs_space!r}} is the oracle control: it reads {PRIVILEGED_STATE_KEY} (the simulator's object "
+    "poses), which only simulated demonstrations record (obsbench demos). A real recording cannot have it: compare "
+    "real-robot spaces against the blind control obs_space='none'."
+)
 
 
 def _uncalibrated(obs_space: str, cam: str) -> SchemaError:

@@ -16,6 +16,7 @@
                   go on; such frames are counted and logged, and training stops when more than half of its
                   first 64+ frames are empty (bad units or extrinsics, not dropouts).
     none       -> (B, 0): the blind control sees nothing (the batch size comes from observation.state).
+    state      -> (B, 7 * O): the oracle control reads the simulator's object poses (observation.privileged_state).
 
 The same module runs on dataset batches in training and on env observations in evaluation, so an observation
 space is never baked into stored data. `CalibratedDepth` runs before it on datasets recorded by LeRobot itself.
@@ -31,10 +32,12 @@ from torch import Tensor, nn
 from lerobot_obsbench import geometry
 from lerobot_obsbench.schema import (
     BLIND_SPACES,
+    CONTROL_SPACES,
     DEPTH_NORMALIZATIONS,
     FRAMES,
     POINT_FEATURES,
     POINT_PIPELINES,
+    PRIVILEGED_STATE_KEY,
     STATE_KEY,
     PointCloud,
     SchemaError,
@@ -84,7 +87,7 @@ class ObservationAdapter(nn.Module):
         workspace_jitter: float = 0.0,
     ):
         super().__init__()
-        if not cameras and obs_space not in BLIND_SPACES:
+        if not cameras and obs_space not in CONTROL_SPACES:
             raise SchemaError(f"ObservationAdapter for obs_space={obs_space!r} needs at least one camera name.")
         check_geometry(workspace, voxel_size, depth_clip)
         self.obs_space = check_obs_space(obs_space)
@@ -176,6 +179,8 @@ class ObservationAdapter(nn.Module):
         if self.obs_space in BLIND_SPACES:
             state = _require(batch, STATE_KEY)
             return state.new_zeros(state.shape[0], 0)
+        if self.obs_space in CONTROL_SPACES:
+            return _require(batch, PRIVILEGED_STATE_KEY).float()
         if self.obs_space == "pointcloud":
             return self._pointcloud(batch, ee_pose)
         to_frame = self._frame_transform(self.cameras[0], batch, ee_pose) if self.obs_space == "pointmap" else None

@@ -24,14 +24,19 @@ from tests.helpers import CAM, frame_batch
 
 
 def test_registry_declares_spaces_and_refuses_wrong_pairs():
-    assert set(available_encoders()) == {"resnet18", "resnet50", "vit_b", "multivit_b", "pointnet", "spunet34", "blind"}
-    assert available_encoders("pointcloud") == ["pointnet", "spunet34"]
-    assert available_encoders("rgbd") == ["multivit_b", "resnet18", "resnet50", "vit_b"]
+    assert set(available_encoders()) == {
+        *("resnet18", "resnet50", "vit_b", "multivit_b", "spatial_softmax"),
+        *("pointnet", "spunet34", "dp3"),
+        *("blind", "oracle"),
+    }
+    assert available_encoders("pointcloud") == ["dp3", "pointnet", "spunet34"]
+    assert available_encoders("rgbd") == ["multivit_b", "resnet18", "resnet50", "spatial_softmax", "vit_b"]
+    assert available_encoders("state") == ["oracle"] and available_encoders("none") == ["blind"]
     assert "pointnet" not in available_encoders("rgb") and "multivit_b" not in available_encoders("rgb")
     assert set(encoder_info("resnet18").spaces) == {"rgb", "depth", "rgbd", "pointmap"}
     assert set(encoder_info("vit_b").spaces) == {"rgb", "depth", "rgbd", "pointmap"}
     with pytest.raises(
-        ValueError, match=r"does not accept obs_space='rgb'.*Encoders for 'rgb': resnet18, resnet50, vit_b"
+        ValueError, match=r"does not accept obs_space='rgb'.*Encoders for 'rgb': resnet18, resnet50, spatial_softmax, vit_b"
     ):
         make_encoder("pointnet", "rgb")
     with pytest.raises(ValueError, match="Unknown encoder 'vit_h'.*pointnet"):

@@ -35,7 +35,7 @@ from lerobot_obsbench.envs.maniskill import DEFAULT_CONTROL_MODE
 from lerobot_obsbench.envs.perturbations import parse_perturbation
 from lerobot_obsbench.envs.task import TASKS, task_spec
 from lerobot_obsbench.presets import PRESETS, preset_encoder, preset_overrides
-from lerobot_obsbench.schema import BLIND_SPACES, OBS_SPACES, POLICY_TYPES
+from lerobot_obsbench.schema import CONTROL_SPACES, OBS_SPACES, POINT_SPACES, POLICY_TYPES
 
 BUDGET_UNITS = {
     "steps": "optimizer steps",
@@ -175,6 +175,10 @@ class Grid:
     # > 0: every checkpoint is evaluated on this many validation episodes and the best one is also evaluated
     # on the test seeds (the report shows it by default); 0: the last checkpoint only
     validation_episodes: int = 0
+    # demonstrations recorded beyond the most any run trains on, never trained on: each trained run's diagnostics
+    # (open-loop action error, objects' pixel size and point-token share; bench/diagnostics.py) are computed on
+    # them. 0: no diagnostics but the loss curve
+    held_out_demos: int = 0
     image_size: int = 128
     cameras: list[str] = field(default_factory=lambda: ["base_camera"])
     control_mode: str = DEFAULT_CONTROL_MODE
@@ -208,7 +212,7 @@ class Grid:
             self.tasks, self.obs_spaces, self.policies, self.variants, self.demos, self.learning_rates, self.seeds
         ):
             unit, budget = self.budget(policy)
-            overrides = {**self.policy_overrides, **variant}
+            overrides = {**task_overrides(task, space), **self.policy_overrides, **variant}
             for encoder in self.encoders[space]:
                 runs.append(
                     RunSpec(
@@ -242,8 +246,13 @@ class Grid:
         return [
             EvalSpec(run.run_id, checkpoint, "test", self.eval_episodes, perturbation, self.max_steps(run))
             for checkpoint in self.test_checkpoints()
-            for perturbation in ("none", *self.perturbations)
+            for perturbation in ("none", *self.perturbations_for(run))
         ]
+
+    def perturbations_for(self, run: RunSpec) -> list[str]:
+        """The perturbations a run is evaluated under: none for the controls, which read no pixels (every
+        perturbation changes only what the cameras see: their episodes would replay the nominal ones)."""
+        return [] if run.obs_space in CONTROL_SPACES else list(self.perturbations)
 
     def validations(self, run: RunSpec, checkpoint_steps: list[int]) -> list[EvalSpec]:
         """The validation evaluations that select the run's best checkpoint."""
@@ -253,6 +262,12 @@ class Grid:
             EvalSpec(run.run_id, f"step:{step}", "validation", self.validation_episodes, "none", self.max_steps(run))
             for step in checkpoint_steps
         ]
+
+
+def task_overrides(task: str, obs_space: str) -> dict[str, object]:
+    """`--policy.*` fields a task sets for a space: its point-cloud crop box (`Task.workspace`)."""
+    workspace = task_spec(task).workspace
+    return {"workspace": list(workspace)} if workspace is not None and obs_space in POINT_SPACES else {}
 
 
 GRID_FIELDS = set(Grid.__dataclass_fields__)
@@ -284,8 +299,8 @@ def _resolve_encoders(spec, spaces: list[str], preset: str) -> dict[str, list[st
     _choose(names, available_encoders(), "encoders")
     resolved = {s: [n for n in names if s in encoder_info(n).spaces] for s in spaces}
     for space, chosen in resolved.items():
-        if not chosen and space in BLIND_SPACES:
-            resolved[space] = [preset_encoder(preset, space)]  # the blind control needs no encoder listed
+        if not chosen and space in CONTROL_SPACES:
+            resolved[space] = [preset_encoder(preset, space)]  # the controls need no encoder listed
         elif not chosen:
             raise GridError(
                 f"no listed encoder accepts obs_space {space!r}; encoders for it: "

@@ -6,9 +6,13 @@ rates; Mean Rank ranks the methods on each task with competition ranking ("1224"
 rank of their group, the next rank skips) and averages the ranks over tasks. A method missing on a task is
 left out of that task's ranking and mean (and marked).
 
-Beyond the paper, two checks that a method uses what it sees:
+Beyond the paper, checks that a method uses what it sees:
 - the blind control (obs_space `none`, same policy type): a method whose 95% interval lies entirely above the
   blind control's on a task is marked ▲ there;
+- the oracle control (obs_space `state`: the simulator's object poses): with the blind control it brackets every
+  seeing space, which is read as the fraction of the oracle's gain over blind it recovers;
+- per-seed outcomes of every column, and each run's diagnostics (loss curve, held-out open-loop action error,
+  objects' pixel size, point tokens on the objects; bench/diagnostics.py);
 - evaluation-only changes (camera moved, light, ...): per-seed agreement with the nominal evaluation of the same
   checkpoint on the same seeds — how many episodes keep their outcome, and how many are identical (outcome and
   length). A policy that ignores its observation repeats every episode exactly.
@@ -28,7 +32,7 @@ from pathlib import Path
 
 from lerobot_obsbench.bench.package_data import path_or_shipped, shipped
 from lerobot_obsbench.envs.perturbations import NOMINAL_VALUE, parse_perturbation
-from lerobot_obsbench.schema import BLIND_SPACES
+from lerobot_obsbench.schema import BLIND_SPACES, CONTROL_SPACES, ORACLE_SPACES
 from lerobot_obsbench.stats import wilson_interval
 
 # Config fields that, when they differ between runs of one method, become part of its column label.
@@ -151,6 +155,7 @@ def run_views(records: list[dict], checkpoint: str = "best") -> list[dict]:
                 "task": r["task"],
                 "shown": shown,
                 "evaluations": tests[r["run_id"]][shown],
+                "diagnostics": r.get("diagnostics", {}),
             }
         )
     return views
@@ -218,6 +223,106 @@ def beats_blind(records: list[dict], cells: dict[str, dict[str, Cell]]) -> dict[
             if controls:
                 out.setdefault(task, {})[method] = cell.ci95[0] > max(c.ci95[1] for c in controls)
     return out
+
+
+def control_brackets(records: list[dict], cells: dict[str, dict[str, Cell]]) -> dict[str, dict[str, dict]]:
+    """{task: {label: {"blind", "oracle", "rate", "gain_fraction"}}} for seeing methods with both controls of their
+    policy type on the task (the best-scoring control of each kind): gain_fraction = (rate - blind) / (oracle -
+    blind), None when the oracle does not beat blind (nothing to recover)."""
+    configs = _label_configs(records)
+    out: dict[str, dict[str, dict]] = {}
+    for task, row in cells.items():
+        for method, cell in row.items():
+            policy = configs[method]["policy"]
+            if configs[method]["obs_space"] in CONTROL_SPACES:
+                continue
+            best = {}
+            for kind, spaces in (("blind", BLIND_SPACES), ("oracle", ORACLE_SPACES)):
+                rates_ = [
+                    c.rate
+                    for m, c in row.items()
+                    if configs[m]["obs_space"] in spaces and configs[m]["policy"] == policy
+                ]
+                best[kind] = max(rates_) if rates_ else None
+            if best["blind"] is None or best["oracle"] is None:
+                continue
+            gain = best["oracle"] - best["blind"]
+            fraction = (cell.rate - best["blind"]) / gain if gain > 0 else None
+            out.setdefault(task, {})[method] = {**best, "rate": cell.rate, "gain_fraction": fraction}
+    return out
+
+
+def bracket_rows(brackets: dict[str, dict[str, dict]]):
+    header = ["task", "method", "blind", "method's rate", "oracle", "fraction of the oracle's gain over blind"]
+    rows = []
+    for task, row in brackets.items():
+        for method, b in row.items():
+            fraction = (
+                "— (the oracle does not beat blind)" if b["gain_fraction"] is None else f"{b['gain_fraction']:.2f}"
+            )
+            cells = [method, f"{b['blind']:.2f}", f"{b['rate']:.2f}", f"{b['oracle']:.2f}", fraction]
+            rows.append((task, [(c, None) for c in cells]))
+    return header, rows
+
+
+def per_seed_rows(records: list[dict]):
+    """Each run's nominal test episodes, seed by seed (1 = success), with its training seed."""
+    labels = method_labels(records)
+    rows = []
+    for r in sorted(records, key=lambda r: (r["task"], labels[r["run_id"]], r["config"]["seed"])):
+        nominal = r["evaluations"].get("none", {}).get("per_seed")
+        if nominal is None:
+            continue
+        seeds = nominal["seeds"]
+        span = f"{seeds[0]}..{seeds[-1]}" if seeds == list(range(seeds[0], seeds[0] + len(seeds))) else str(seeds)
+        cells = [labels[r["run_id"]], str(r["config"]["seed"]), span, nominal["success"].replace(".", "0")]
+        rows.append((r["task"], [(c, None) for c in cells]))
+    return ["task", "method", "training seed", "test seeds", "outcome per test seed"], rows
+
+
+def diagnostic_rows(records: list[dict]):
+    """One row per run: final training loss, held-out open-loop error, objects' pixel size, point tokens on them."""
+    labels = method_labels(records)
+    rows = []
+    for r in sorted(records, key=lambda r: (r["task"], labels[r["run_id"]], r["config"]["seed"])):
+        d = r.get("diagnostics") or {}
+        if not d:
+            continue
+        curve = d.get("loss_curve") or []
+        pixels = d.get("object_pixels")
+        share = d.get("object_token_share")
+        cells = [
+            labels[r["run_id"]],
+            str(r["config"]["seed"]),
+            f"{curve[-1][1]:.3f} (step {curve[-1][0]})" if curve else "—",
+            f"{d['open_loop_error']:.3f}" if "open_loop_error" in d else d.get("error", "—"),
+            ", ".join(f"{k} {v:.1f} px" for k, v in pixels.items()) if pixels else "—",
+            f"{share:.2f}" if share is not None else "—",
+        ]
+        rows.append((r["task"], [(c, None) for c in cells]))
+    header = [
+        "task",
+        "method",
+        "training seed",
+        "final training loss",
+        "held-out open-loop action error (normalised L1)",
+        "object diameter in the camera",
+        "share of point tokens on the objects",
+    ]
+    return header, rows
+
+
+def loss_chart(records: list[dict]) -> bytes | None:
+    """Training loss against step, one line per run."""
+    labels = method_labels(records)
+    series = {
+        f"{labels[r['run_id']]} seed {r['config']['seed']} ({r['task']})": [
+            tuple(p) for p in r["diagnostics"]["loss_curve"]
+        ]
+        for r in records
+        if (r.get("diagnostics") or {}).get("loss_curve")
+    }
+    return curve_chart(series, "optimizer step", "Training loss", log_y=True, ylabel="loss") if series else None
 
 
 @dataclass
@@ -400,7 +505,14 @@ def bar_chart(cells: dict[str, dict[str, Cell]]) -> bytes:
     return png
 
 
-def curve_chart(series: dict[str, list[tuple[float, float]]], xlabel: str, title: str, log_x: bool = False) -> bytes:
+def curve_chart(
+    series: dict[str, list[tuple[float, float]]],
+    xlabel: str,
+    title: str,
+    log_x: bool = False,
+    log_y: bool = False,
+    ylabel: str = "mean success rate over tasks",
+) -> bytes:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -409,12 +521,15 @@ def curve_chart(series: dict[str, list[tuple[float, float]]], xlabel: str, title
     fig, ax = plt.subplots(figsize=(5.5, 3.5))
     for method, points in sorted(series.items()):
         xs, ys = zip(*sorted(points), strict=True)
-        ax.plot(xs, ys, marker="o", label=method)
+        ax.plot(xs, ys, marker="o" if len(xs) < 20 else None, label=method)
     if log_x:
         ax.set_xscale("log")
     ax.set_xlabel(xlabel)
-    ax.set_ylabel("mean success rate over tasks")
-    ax.set_ylim(0, 1)
+    ax.set_ylabel(ylabel)
+    if log_y:
+        ax.set_yscale("log")
+    else:
+        ax.set_ylim(0, 1)
     ax.set_title(title, fontsize=10)
     ax.legend(fontsize=7)
     fig.tight_layout()
@@ -481,6 +596,20 @@ def build_report(
         )
         summary["results"] = summarize(table)
         checks["beats_blind"] = blind
+        brackets = control_brackets(records, cells)
+        if brackets:
+            sections.append(
+                (
+                    "Between the controls: each seeing space against the blind control (no observation) and the "
+                    "oracle (the simulator's object poses), same policy type",
+                    bracket_rows(brackets),
+                )
+            )
+            checks["controls"] = brackets
+        sections.append(("Outcome per test seed (1 = success), nominal evaluation", per_seed_rows(records)))
+        diagnostics = diagnostic_rows(records)
+        if diagnostics[1]:
+            sections.append(("Diagnostics per run (bench/diagnostics.py)", diagnostics))
         found = agreements(records)
         if found:
             sections.append(
@@ -501,6 +630,9 @@ def build_report(
                 for (task, method, name), a in found.items()
             }
         figures["success_by_task.png"] = ("Success rate per task", bar_chart(cells))
+        losses = loss_chart(records)
+        if losses is not None:
+            figures["training_loss.png"] = ("Training loss per run", losses)
         for kind, series in perturbation_series(records).items():
             figures[f"generalization_{kind}.png"] = (
                 f"Zero-shot {kind}",

@@ -124,6 +124,8 @@ def load_work(grid: Grid, out: Path, echo=print) -> Work:
     for run in work.to_train:
         _, most = work.demos.get(run.demo_key, (run, 0))
         work.demos[run.demo_key] = (run, max(most, run.demos))
+    # the held-out demonstrations follow the most any run of the dataset trains on
+    work.demos = {key: (run, most + grid.held_out_demos) for key, (run, most) in work.demos.items()}
     return work
 
 
@@ -231,6 +233,7 @@ class Driver:
             str(self.out),
             self.device,
             self.grid.per_policy("checkpoints", run.policy),
+            self.grid.held_out_demos,
             self.loader_workers,
             self.threads,
             cpus=max(1, self.threads or 1),

@@ -85,6 +85,12 @@ def demos_unit(task: str, episodes: int, path: str, image_size: int, cameras: li
     return record_demos(task, episodes, Path(path), image_size=image_size, cameras=tuple(cameras))
 
 
+def demo_count(dataset: Path) -> int:
+    from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+
+    return int(LeRobotDatasetMetadata("local/obsbench", root=dataset).total_episodes)
+
+
 def demo_frames(dataset: Path, episodes: int) -> int:
     from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 
@@ -173,11 +179,12 @@ def train_unit(
     out_dir: str,
     device: str = "cpu",
     checkpoints: int = 4,
+    held_out: int = 0,
     loader_workers: int = 0,
     threads: int | None = None,
 ) -> dict:
-    """Train one run with stock lerobot-train (resuming from its last checkpoint after a kill); returns its
-    train record."""
+    """Train one run with stock lerobot-train (resuming from its last checkpoint after a kill), then compute its
+    diagnostics on the dataset's last `held_out` demonstrations; returns its train record."""
     run = RunSpec.from_config(run_config)
     root = Path(out_dir) / "runs" / run.run_id
     root.mkdir(parents=True, exist_ok=True)
@@ -213,6 +220,7 @@ def train_unit(
             f"training of run {run.run_id} ({run.method} on {run.task}) failed with exit code "
             f"{done.returncode}; log {root / 'train.log'}:\n{tail}"
         )
+    train_s = round(time.time() - start, 1)
     return {
         "kind": "train",
         "run_id": run.run_id,
@@ -226,10 +234,30 @@ def train_unit(
         "checkpoints": {str(s): str(p) for s, p in saved.items()},
         "resumed_from": resumed_from,
         "device": device,
-        "timings": {"train_s": round(time.time() - start, 1)},
+        "timings": {"train_s": train_s},
+        "diagnostics": run_diagnostics(run, root, Path(saved[steps]), Path(dataset), held_out, device),
         "versions": versions(),
         "finished_at": now(),
     }
+
+
+def run_diagnostics(run: RunSpec, root: Path, checkpoint: Path, dataset: Path, held_out: int, device: str) -> dict:
+    """The run's loss curve, and its held-out diagnostics on the dataset's last `held_out` episodes (which no run
+    trains on). A failure is recorded in place of the held-out figures, not raised: the trained run is kept."""
+    from lerobot_obsbench.bench.diagnostics import held_out_diagnostics, loss_curve
+    from lerobot_obsbench.envs.task import task_spec
+
+    out: dict = {"loss_curve": loss_curve((root / "train.log").read_text())}
+    if held_out:
+        total = demo_count(dataset)
+        episodes = list(range(total - held_out, total))
+        if episodes[0] < run.demos:
+            raise RunError(f"run {run.run_id} trains on {run.demos} demos; the held-out {episodes} overlap them")
+        try:
+            out.update(held_out_diagnostics(checkpoint, dataset, episodes, task_spec(run.task), device))
+        except Exception as err:  # a diagnostic must not lose a trained run
+            out["error"] = f"{type(err).__name__}: {err}"
+    return out
 
 
 def training_progress(out_dir: Path, run_id: str) -> dict | None:

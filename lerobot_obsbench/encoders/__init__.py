@@ -1,6 +1,15 @@
 """Observation encoders. Importing this package registers the built-in encoders."""
 
-from lerobot_obsbench.encoders import blind, pointnet, resnet, spunet34, vit  # noqa: F401  (registration)
+from lerobot_obsbench.encoders import (  # noqa: F401  (registration)
+    blind,
+    dp3,
+    keypoints,
+    oracle,
+    pointnet,
+    resnet,
+    spunet34,
+    vit,
+)
 from lerobot_obsbench.encoders.registry import (
     EncoderContext,
     EncoderOutput,

@@ -6,7 +6,8 @@ few keys), with the schema's extra sensors riding in the `robot_state` passthrou
     pixels            {cam: uint8 (H, W, 3)}                 -> observation.images.<cam>
     agent_pos         float32 (16,): qpos (9) + tcp pose (7)  -> observation.state
     environment_state float32 (G,): the task goal, if any     -> observation.environment_state
-    robot_state       {"depth.<cam>": uint16 (H, W, 1) mm, "intrinsics.<cam>": (3, 3), "cam2world.<cam>": (4, 4)}
+    robot_state       {"depth.<cam>": uint16 (H, W, 1) mm, "intrinsics.<cam>": (3, 3), "cam2world.<cam>": (4, 4),
+                       "privileged_state": (7 * O,) object poses, for tasks that name them}
                       -> observation.robot_state, unpacked by the plugin's policies into observation.<key>
 
 `schema_frame(obs)` gives the same data keyed by dataset schema keys (used to record demonstrations), so a
@@ -25,6 +26,7 @@ from lerobot_obsbench.envs.perturbations import apply_scene_perturbation, camera
 from lerobot_obsbench.envs.task import TaskError, asset_help, first, missing_assets, task_spec, to_numpy
 from lerobot_obsbench.schema import (
     ENV_STATE_KEY,
+    PRIVILEGED_STATE_KEY,
     STATE_KEY,
     cam2world_key,
     depth_key,
@@ -131,6 +133,11 @@ class ObsBenchEnv(gym.Env):
         self._next_seed = seed
         self.perturbation = parse_perturbation(perturbation)
         sensor_configs = dict(width=image_size, height=image_size)
+        if spec.camera is not None:
+            from mani_skill.utils import sapien_utils
+
+            eye, target, fov = spec.camera
+            sensor_configs["base_camera"] = {"pose": sapien_utils.look_at(list(eye), list(target)), "fov": fov}
         if self.perturbation and self.perturbation.kind == "noise":
             import sapien
 
@@ -139,7 +146,9 @@ class ObsBenchEnv(gym.Env):
             sensor_configs["shader_pack"] = "rt"
         obs = self._make(control_mode, sensor_configs, episode_length or spec.max_steps)
         if self.perturbation and self.perturbation.kind.startswith("camera"):
-            sensor_configs.update(camera_overrides(self._env.unwrapped, self.cameras, self.perturbation))
+            moved = camera_overrides(self._env.unwrapped, self.cameras, self.perturbation, spec.camera)
+            for cam, config in moved.items():
+                sensor_configs[cam] = {**sensor_configs.get(cam, {}), **config}
             self._env.close()
             obs = self._make(control_mode, sensor_configs, episode_length or spec.max_steps)
         if self.perturbation and self.perturbation.kind in ("light", "background"):
@@ -152,6 +161,10 @@ class ObsBenchEnv(gym.Env):
         self.action_space = gym.spaces.Box(-1.0, 1.0, self.unwrapped_ms.single_action_space.shape, np.float32)
         goal_dim = sum(spec.goal.values())
         size = (image_size, image_size)
+        privileged = {}
+        if spec.privileged_actors:
+            shape = (len(spec.privileged_actors) * 7,)
+            privileged["privileged_state"] = gym.spaces.Box(-np.inf, np.inf, shape, np.float32)
         spaces = {
             "pixels": gym.spaces.Dict({c: gym.spaces.Box(0, 255, (*size, 3), np.uint8) for c in self.cameras}),
             "agent_pos": gym.spaces.Box(-np.inf, np.inf, (STATE_DIM,), np.float32),
@@ -160,6 +173,7 @@ class ObsBenchEnv(gym.Env):
                     **{f"depth.{c}": gym.spaces.Box(0, 65535, (*size, 1), np.uint16) for c in self.cameras},
                     **{f"intrinsics.{c}": gym.spaces.Box(-np.inf, np.inf, (3, 3), np.float32) for c in self.cameras},
                     **{f"cam2world.{c}": gym.spaces.Box(-np.inf, np.inf, (4, 4), np.float32) for c in self.cameras},
+                    **privileged,
                 }
             ),
         }
@@ -200,6 +214,8 @@ class ObsBenchEnv(gym.Env):
             frame[cam2world_key(cam)] = cam2world_from_extrinsic(to_numpy(param["extrinsic_cv"][0]))
         state = np.concatenate([first(obs["agent"]["qpos"]), first(obs["extra"]["tcp_pose"])])
         frame[STATE_KEY] = state.astype(np.float32)
+        if self.spec_.privileged_actors:
+            frame[PRIVILEGED_STATE_KEY] = self.spec_.privileged_state(self._env.unwrapped)
         if self.spec_.goal:
             frame[ENV_STATE_KEY] = np.concatenate([first(obs["extra"][k]) for k in self.spec_.goal]).astype(np.float32)
         return frame

@@ -122,13 +122,16 @@ def capture_look_at(ms_env) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     return {config.uid: call for config, call in zip(configs, calls, strict=True)}
 
 
-def camera_overrides(ms_env, cameras, perturbation: Perturbation) -> dict:
-    """`sensor_configs` entries moving each camera for a camera perturbation."""
+def camera_overrides(ms_env, cameras, perturbation: Perturbation, task_camera=None) -> dict:
+    """`sensor_configs` entries moving each camera for a camera perturbation; `task_camera` (eye, target, fov):
+    the task's own `base_camera`, moved instead of ManiSkill's."""
     from mani_skill.utils import sapien_utils
 
     yaw = perturbation.scalar if perturbation.kind == "camera_yaw" else 0.0
     pitch = perturbation.scalar if perturbation.kind == "camera_pitch" else 0.0
     looks = capture_look_at(ms_env)
+    if task_camera is not None:
+        looks["base_camera"] = tuple(np.asarray(p, dtype=np.float64) for p in task_camera[:2])
     return {
         cam: {"pose": sapien_utils.look_at(orbit_eye(*looks[cam], yaw, pitch).tolist(), looks[cam][1].tolist())}
         for cam in cameras

@@ -72,6 +72,18 @@ class Task:
     expert: ClassVar[type | None] = None
     # ManiSkill asset download id when the task needs downloaded assets.
     asset_group: ClassVar[str | None] = None
+    # Attributes of the ManiSkill env holding the actors whose poses (xyz + quaternion wxyz, 7 values each, in this
+    # order) demonstrations record as observation.privileged_state: the input of the oracle control `state`.
+    privileged_actors: ClassVar[tuple[str, ...]] = ()
+    # The objects a seeing policy must find, among `privileged_actors`: attribute -> bounding-sphere radius in
+    # metres. The diagnostics count the point tokens and pixels that fall on them.
+    objects: ClassVar[dict[str, float]] = {}
+    # The task's own `base_camera` (OBSBench's, replacing ManiSkill's): eye and target points in the world frame
+    # (metres) and the field of view (radians). None: ManiSkill's camera.
+    camera: ClassVar[tuple[tuple[float, float, float], tuple[float, float, float], float] | None] = None
+    # Point-cloud crop box around the task's objects (xmin, xmax, ymin, ymax, zmin, zmax; world frame, metres),
+    # given to point-cloud runs of the benchmark grids. None: the policy's default box.
+    workspace: ClassVar[tuple[float, float, float, float, float, float] | None] = None
 
     @property
     def env_id(self) -> str:
@@ -81,6 +93,11 @@ class Task:
         """After ManiSkill's own reset: change the episode's initial state (a variant's randomization, drawn from
         `ms_env._episode_rng`, so it follows the episode seed). Returns whether it changed anything."""
         return False
+
+    def privileged_state(self, ms_env) -> np.ndarray:
+        """The oracle's observation: the poses of `privileged_actors`, (7 * O,) float32."""
+        poses = [first(getattr(ms_env, name).pose.raw_pose) for name in self.privileged_actors]
+        return np.concatenate(poses).astype(np.float32)
 
     def milestone(self, name: str, ms_env, info: dict, success: bool) -> bool:
         """Whether milestone `name` holds at this step (`ms_env`: the unwrapped ManiSkill env)."""
@@ -108,6 +125,9 @@ def register_task(cls: type[Task]) -> type[Task]:
         raise ValueError(
             f"task {cls.name!r} is registered twice ({type(TASKS[cls.name]).__module__}, {cls.__module__})"
         )
+    unknown = [name for name in cls.objects if name not in cls.privileged_actors]
+    if unknown:
+        raise ValueError(f"task {cls.name!r}: objects {unknown} are not among its privileged_actors")
     if cls.sub_success and "grasp" in cls.sub_success and cls.grasped is None:
         raise ValueError(f"task {cls.name!r} reports a grasp milestone but names no grasped object")
     TASKS[cls.name] = cls()

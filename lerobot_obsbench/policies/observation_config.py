@@ -24,9 +24,11 @@ from lerobot_obsbench.schema import (
     DEPTH_NORMALIZATIONS,
     EE_POSE_SIZE,
     FRAMES,
+    ORACLE_SPACES,
     POINT_FEATURES,
     POINT_PIPELINES,
     POINT_SPACES,
+    PRIVILEGED_STATE_KEY,
     SAMPLING,
     STATE_KEY,
     SchemaError,
@@ -77,6 +79,9 @@ class ObservationConfig:
     # (height, width) of the camera frames the policy was trained on; filled in from the dataset and saved,
     # so evaluation can refuse an env rendering another size.
     camera_resolution: list[int] = field(default_factory=list)
+    # Size of observation.privileged_state (7 per object) the oracle space `state` reads; filled in from the
+    # dataset and saved (the key is kept from LeRobot's normaliser, as the sensors are). 0 for every other space.
+    privileged_state_dim: int = 0
     # Calibration of cameras recorded with LeRobot's own depth feature (`observation.images.<cam>_depth`): camera ->
     # the fields of `camera_calibration.CameraCalibration`. Filled in from the dataset's meta/obsbench_cameras.json
     # (`obsbench attach-calibration`) when training starts, and saved with the checkpoint.
@@ -260,7 +265,10 @@ class ObservationConfig:
         `input_features`: LeRobot's normaliser must not touch depth (mm), K or cam2world, and RGB is
         normalised by the adapter so that training and evaluation see identical inputs."""
         sensors = {k: ft for k, ft in self.input_features.items() if is_sensor_key(k)}
-        if sensors or not self.cameras:
+        if self.obs_space in ORACLE_SPACES and (sensors or not self.privileged_state_dim):
+            validate_features(self.input_features, self.obs_space)
+            self.privileged_state_dim = int(self.input_features[PRIVILEGED_STATE_KEY].shape[0])
+        elif sensors or not self.cameras:
             calibration = self.depth_calibration
             self.cameras = validate_features(self.input_features, self.obs_space, self.cameras or None, calibration)
             self.camera_resolution = camera_resolution(self.input_features, self.obs_space, self.cameras, calibration)
@@ -285,13 +293,15 @@ class ObservationConfig:
         self.depth_calibration = {cam: calibration[cam].to_dict() for cam in stock if cam in calibration}
 
     def observation_keys(self) -> list[str]:
-        return sensor_keys(self.obs_space, self.cameras)
+        oracle = [PRIVILEGED_STATE_KEY] if self.obs_space in ORACLE_SPACES else []
+        return sensor_keys(self.obs_space, self.cameras) + oracle
 
     def encoder_options(self) -> dict:
         """The chosen encoder's options, taken from this config (`image_size` from the camera resolution, MultiViT's
         depth standardisation from `depth_normalization`)."""
         values = {option: getattr(self, name) for name, option in self.ENCODER_FIELDS.items()}
         values["voxel_size"] = self.voxel_size
+        values["state_dim"] = self.privileged_state_dim
         values["depth_standardize"] = self.depth_normalization == "official"
         if self.camera_resolution:
             values["image_size"] = tuple(self.camera_resolution)

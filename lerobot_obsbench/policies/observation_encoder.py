@@ -9,7 +9,7 @@ from torch import Tensor, nn
 
 from lerobot_obsbench import geometry
 from lerobot_obsbench.encoders import encoder_output, make_encoder
-from lerobot_obsbench.schema import BLIND_SPACES, EE_POSE_SIZE, STATE_KEY
+from lerobot_obsbench.schema import BLIND_SPACES, EE_POSE_SIZE, ORACLE_SPACES, PRIVILEGED_STATE_KEY, STATE_KEY
 from lerobot_obsbench.spaces import ObservationAdapter
 
 
@@ -40,6 +40,22 @@ class StateDenormalizer(nn.Module):
         return state * self.scale + self.loc
 
 
+class Standardizer(nn.Module):
+    """(x - mean) / std with the dataset's statistics, kept as buffers so a loaded policy needs no stats. The oracle's
+    input is standardised here rather than by LeRobot's normaliser, because in evaluation it arrives in the env's
+    sensor passthrough, after the preprocessor. A value that barely varies in the demonstrations (a resting height,
+    an upright quaternion) is divided by at least `min_std`, not amplified."""
+
+    def __init__(self, dim: int, stats: dict | None, min_std: float = 1e-2):
+        super().__init__()
+        st = {k: torch.as_tensor(v, dtype=torch.float32).reshape(-1) for k, v in (stats or {}).items()}
+        self.register_buffer("mean", st.get("mean", torch.zeros(dim)))
+        self.register_buffer("std", st.get("std", torch.ones(dim)).clamp_min(min_std))
+
+    def forward(self, x: Tensor) -> Tensor:
+        return (x - self.mean) / self.std
+
+
 class ObservationEncoder(nn.Module):
     """Sensor batch -> tokens/pos (ACT, `output="tokens"`) or one feature vector (DP, `output="global"`);
     `out_dim` is the token width or the feature size the registry declares for this config."""
@@ -66,6 +82,10 @@ class ObservationEncoder(nn.Module):
         mode = config.normalization_mapping.get(FeatureType.STATE.value, NormalizationMode.IDENTITY)
         stats = (dataset_stats or {}).get(STATE_KEY)
         self.state = StateDenormalizer(config.input_features.get(STATE_KEY), mode, stats)
+        self.privileged = None
+        if config.obs_space in ORACLE_SPACES:
+            stats = (dataset_stats or {}).get(PRIVILEGED_STATE_KEY)
+            self.privileged = Standardizer(config.privileged_state_dim, stats)
         # the keys the adapter reads (the blind space reads the state, for the batch size only)
         reads_state = self.adapter.needs_ee_pose or config.obs_space in BLIND_SPACES
         self.input_keys = config.observation_keys() + ([STATE_KEY] if reads_state else [])
@@ -75,4 +95,5 @@ class ObservationEncoder(nn.Module):
         if self.adapter.needs_ee_pose:
             pose = self.state(batch[STATE_KEY])[..., -EE_POSE_SIZE:]
             ee_pose = geometry.pose_to_matrix(pose[..., :3], pose[..., 3:])
-        return self.encoder(self.adapter(batch, ee_pose=ee_pose))
+        inputs = self.adapter(batch, ee_pose=ee_pose)
+        return self.encoder(inputs if self.privileged is None else self.privileged(inputs))

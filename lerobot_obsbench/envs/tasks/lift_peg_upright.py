@@ -55,3 +55,5 @@ class LiftPegUpright(Task):
     max_steps = 50
     description = "lift the lying peg into an upright pose"
     expert = LiftPegUprightExpert
+    privileged_actors = ("peg",)
+    objects = {"peg": 0.125}  # 12 cm half-length peg

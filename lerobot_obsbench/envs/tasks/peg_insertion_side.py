@@ -40,6 +40,7 @@ class PegInsertionSide(Task):
     max_steps = 100
     description = "insert the peg into the hole of the box from the side"
     grasped = PEG
+    privileged_actors = (PEG, "box")
     sub_success = ("grasp", "align", "insert")
     expert = PegInsertionSideExpert
 

@@ -38,4 +38,6 @@ class PickCube(Task):
     max_steps = 50
     description = "pick up the red cube and move it to the goal"
     goal = {"goal_pos": 3}
+    privileged_actors = ("cube", "goal_site")
+    objects = {"cube": 0.035}  # 2 cm half-size cube
     expert = PickCubeExpert

@@ -44,4 +44,6 @@ class PullCube(Task):
     max_steps = 50
     description = "pull the cube back into the goal region"
     goal = {"goal_pos": 3}
+    privileged_actors = ("obj", "goal_region")
+    objects = {"obj": 0.035}  # 2 cm half-size cube
     expert = PullCubeExpert

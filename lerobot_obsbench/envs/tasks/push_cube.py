@@ -14,6 +14,10 @@ PushCubeWide-v1 (an OBSBench variant, the main job's task): the same task with t
 [-0.2, 0.2] instead of [-0.1, 0.1] (x unchanged; the target still 0.2 m in +x of the cube). A policy that does
 not see the cube pushes where it usually is and misses more often, so seeing policies separate from blind ones.
 The same expert solves it: 20/20 over seeds 100000.. (`obsbench demos --task PushCubeWide-v1 --episodes 20`).
+Its camera looks down at the table region the cube and target can occupy (ManiSkill's looks at the robot from
+0.6 m with a 90° field of view, where the cube spans ~2 pixels of a 64² frame), and point clouds are cropped to
+the 10 cm above that region, as DP3's code crops to the task's workspace: at the episode's start the cloud is the
+cube alone.
 """
 
 from __future__ import annotations
@@ -49,6 +53,8 @@ class PushCube(Task):
     max_steps = 50
     description = "push the cube into the goal region"
     expert = PushCubeExpert
+    privileged_actors = ("obj", "goal_region")
+    objects = {"obj": 0.035}  # 2 cm half-size cube
 
 
 @register_task
@@ -58,6 +64,10 @@ class PushCubeWide(PushCube):
     description = "push the cube, placed anywhere in a 40 cm wide strip, into the goal region"
     # half extents of the cube's xy spawn box (ManiSkill's: 0.1, 0.1)
     spawn_half_size = (0.1, 0.2)
+    # looking down from in front of the table at the region x in [-0.15, 0.4], y in [-0.3, 0.3]
+    camera = ((0.5, 0.0, 0.6), (0.1, 0.0, 0.0), 1.0)
+    # the spawn strip and the target, from 5 mm above the table (drops it and the flat target) to 10 cm
+    workspace = (-0.2, 0.45, -0.35, 0.35, 0.005, 0.1)
 
     def initialize(self, ms_env) -> bool:
         from mani_skill.utils.structs import Pose

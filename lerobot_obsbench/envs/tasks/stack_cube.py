@@ -41,5 +41,7 @@ class StackCube(Task):
     max_steps = 50
     description = "stack the red cube on the green cube"
     grasped = "cubeA"
+    privileged_actors = ("cubeA", "cubeB")
+    objects = {"cubeA": 0.035, "cubeB": 0.035}  # 2 cm half-size cubes
     sub_success = ("grasp",)
     expert = StackCubeExpert

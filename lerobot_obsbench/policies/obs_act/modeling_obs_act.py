@@ -137,6 +137,24 @@ class ObsACTPolicy(ModelCardMixin, EnvObservationMixin, ACTPolicy):
             loss = loss + kld * self.config.kl_weight
         return loss, loss_dict
 
+    def observation_encoder(self) -> ObservationEncoder:
+        return self.model.observation
+
+    def open_loop_error(self, batch: dict[str, Tensor]) -> Tensor:
+        """Per sample: the mean absolute error of the chunk predicted as at inference (zero latent) against the
+        demonstrated chunk, over its valid steps, in normalised action units (a preprocessed training batch; the
+        held-out diagnostic of `bench.diagnostics`)."""
+        was_training = self.training
+        self.eval()
+        try:
+            batch = self.calibrated_depth(batch)
+            actions_hat, _ = self.model(batch)
+        finally:
+            self.train(was_training)
+        valid = ~batch["action_is_pad"].unsqueeze(-1)
+        error = (actions_hat - batch[ACTION]).abs() * valid
+        return error.sum((1, 2)) / (valid.sum((1, 2)) * error.shape[-1]).clamp_min(1)
+
     def get_optim_params(self) -> list[dict]:
         """One parameter group, plus one for the encoder when it has its own learning rate
         (`optimizer_lr_backbone`)."""

@@ -14,7 +14,7 @@ from lerobot.policies.diffusion.modeling_diffusion import (
     _make_noise_scheduler,
 )
 from lerobot.policies.pretrained import PreTrainedPolicy
-from lerobot.utils.constants import OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 from torch import Tensor, nn
 
 from lerobot_obsbench.policies.env_passthrough import EnvObservationMixin
@@ -135,6 +135,21 @@ class ObsDiffusionPolicy(ModelCardMixin, EnvObservationMixin, DiffusionPolicy):
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, None]:
         return super().forward(self.calibrated_depth(batch))
+
+    def observation_encoder(self) -> ObservationEncoder:
+        return self.diffusion.observation
+
+    def open_loop_error(self, batch: dict[str, Tensor]) -> Tensor:
+        """Per sample: the mean absolute error of the `n_action_steps` actions sampled as at inference against the
+        demonstrated ones, over their valid steps, in normalised action units (a preprocessed training batch; the
+        held-out diagnostic of `bench.diagnostics`)."""
+        batch = self.calibrated_depth(batch)
+        predicted = self.diffusion.generate_actions(batch)
+        start = self.config.n_obs_steps - 1
+        target = batch[ACTION][:, start : start + predicted.shape[1]]
+        valid = ~batch["action_is_pad"][:, start : start + predicted.shape[1]].unsqueeze(-1)
+        error = (predicted - target).abs() * valid
+        return error.sum((1, 2)) / (valid.sum((1, 2)) * error.shape[-1]).clamp_min(1)
 
     def get_optim_params(self) -> list[dict]:
         """AdamW groups; with `optimizer_decay_exempt_1d`, biases and 1-D parameters without weight decay."""
