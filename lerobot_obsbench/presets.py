@@ -22,6 +22,8 @@ from lerobot_obsbench.encoders import default_encoder
 from lerobot_obsbench.schema import DEPTH_IMAGE_SPACES, IMAGE_SPACES, POINT_SPACES, POLICY_TYPES, check_choice
 
 ACT, DP = POLICY_TYPES
+# The paper's point-cloud encoders: FPS + kNN tokenizer, its pipeline and heads.
+PAPER_POINT_ENCODERS = ("pointnet", "spunet34")
 
 PRESETS: dict[str, dict[tuple[str, str], dict[str, object]]] = {
     "paper": {
@@ -31,9 +33,10 @@ PRESETS: dict[str, dict[tuple[str, str], dict[str, object]]] = {
         ("*", "image"): {"image_input_size": 224},
         **{("*", stem): {"zero_init_extra_channels": True} for stem in ("resnet18", "resnet50", "vit_b")},
         ("*", "depth"): {"depth_normalization": "official"},
-        ("*", "point"): {"point_pipeline": "official"},
-        (ACT, "point"): {"position_scale": 1.0},
-        (DP, "point"): {"dp_point_head": "official"},
+        # the paper's point encoders' tokenizer and heads (DP3 has neither)
+        **{("*", enc): {"point_pipeline": "official"} for enc in PAPER_POINT_ENCODERS},
+        **{(ACT, enc): {"position_scale": 1.0} for enc in PAPER_POINT_ENCODERS},
+        **{(DP, enc): {"dp_point_head": "official"} for enc in PAPER_POINT_ENCODERS},
     },
     # The paper's real-robot set-up (ACT, lr 5e-5, ResNet-50 / PointNet, two RealSense cameras; README: Real robot):
     # crop boxes in the ChArUco board's world frame (z up), jittered by ±1 cm in training.
@@ -85,7 +88,8 @@ PRESETS: dict[str, dict[tuple[str, str], dict[str, object]]] = {
             "num_inference_steps": 4,
         },
         ("*", "image"): {"encoder": "resnet18"},
-        ("*", "point"): {"num_tokens": 16, "knn": 4},
+        ("*", "point"): {"num_tokens": 16},
+        **{("*", enc): {"knn": 4} for enc in PAPER_POINT_ENCODERS},
     },
 }
 

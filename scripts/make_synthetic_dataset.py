@@ -89,7 +89,14 @@ def quat_z(angle: float) -> np.ndarray:
     return np.array([np.cos(angle / 2), 0.0, 0.0, np.sin(angle / 2)])
 
 
-def features(size: int, camera: str, use_video: bool, with_goal: bool = True, depth_size: int | None = None) -> dict:
+def features(
+    size: int,
+    camera: str,
+    use_video: bool,
+    with_goal: bool = True,
+    depth_size: int | None = None,
+    privileged: bool = False,
+) -> dict:
     feats = {
         f"observation.images.{camera}": {
             "dtype": "video" if use_video else "image",
@@ -109,6 +116,8 @@ def features(size: int, camera: str, use_video: bool, with_goal: bool = True, de
     }
     if not with_goal:
         del feats["observation.environment_state"]
+    if privileged:
+        feats["observation.privileged_state"] = {"dtype": "float32", "shape": (7,), "names": None}
     return feats
 
 
@@ -139,11 +148,13 @@ def write_dataset(
     repo_id: str = "local/obsbench_synthetic",
     frame_hook=None,
     depth_size: int | None = None,
+    privileged: bool = False,
 ) -> Path:
     """Write the dataset; `with_goal=False` leaves out the cube position (environment_state), so that a policy
     can only find the cube in its observations. `frame_hook(episode, index, frame)` may change a frame before it
     is written (tests use it to plant bad sensor values); `depth_size` stores depth at another resolution than
-    colour (a recording error: depth not aligned to colour)."""
+    colour (a recording error: depth not aligned to colour); `privileged` also records the cube's pose as a
+    simulator would (observation.privileged_state, xyz + quaternion wxyz: the oracle control's input)."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     rng = np.random.default_rng(seed)
@@ -152,7 +163,7 @@ def write_dataset(
     ds = LeRobotDataset.create(
         repo_id=repo_id,
         fps=10,
-        features=features(size, camera, use_video, with_goal, depth_size),
+        features=features(size, camera, use_video, with_goal, depth_size, privileged),
         root=out,
         robot_type="synthetic",
         use_videos=use_video,
@@ -175,6 +186,8 @@ def write_dataset(
             }
             if with_goal:
                 frame["observation.environment_state"] = cube.astype(np.float32)
+            if privileged:
+                frame["observation.privileged_state"] = np.concatenate([cube, [1.0, 0, 0, 0]]).astype(np.float32)
             if frame_hook is not None:
                 frame = frame_hook(episode_index, index, frame)
             ds.add_frame(frame)

@@ -329,3 +329,19 @@ def test_policy_configs_refuse_what_the_compact_encoders_do_not_take():
         ObsACTConfig(device="cpu", obs_space="pointcloud", encoder="spatial_softmax")
     with pytest.raises(ValueError, match="zero_init_extra_channels=True is not an option of encoder 'spatial_softmax'"):
         ObsDiffusionConfig(device="cpu", obs_space="rgbd", encoder="spatial_softmax", zero_init_extra_channels=True)
+
+
+@pytest.mark.parametrize("preset", ["paper", "cpu", "tiny"])
+@pytest.mark.parametrize("policy_type", ["obs_act", "obs_diffusion"])
+def test_every_preset_configures_every_registered_encoder(preset, policy_type):
+    """A preset keys fields by the encoders that take them: each (space, encoder) pair gets a config its policy
+    accepts (a field the encoder would ignore is refused, so this fails on a preset that sets one)."""
+    from lerobot.configs.policies import PreTrainedConfig
+
+    from lerobot_obsbench.presets import preset_overrides
+
+    for obs_space in OBS_SPACES:
+        for encoder in available_encoders(obs_space):
+            fields = preset_overrides(preset, policy_type, obs_space, encoder)
+            fields.pop("encoder", None)
+            PreTrainedConfig.get_choice_class(policy_type)(obs_space=obs_space, encoder=encoder, **fields)

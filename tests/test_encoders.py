@@ -36,7 +36,8 @@ def test_registry_declares_spaces_and_refuses_wrong_pairs():
     assert set(encoder_info("resnet18").spaces) == {"rgb", "depth", "rgbd", "pointmap"}
     assert set(encoder_info("vit_b").spaces) == {"rgb", "depth", "rgbd", "pointmap"}
     with pytest.raises(
-        ValueError, match=r"does not accept obs_space='rgb'.*Encoders for 'rgb': resnet18, resnet50, spatial_softmax, vit_b"
+        ValueError,
+        match=r"does not accept obs_space='rgb'.*Encoders for 'rgb': resnet18, resnet50, spatial_softmax, vit_b",
     ):
         make_encoder("pointnet", "rgb")
     with pytest.raises(ValueError, match="Unknown encoder 'vit_h'.*pointnet"):

@@ -21,6 +21,7 @@ import torch
 from lerobot_obsbench import geometry, schema
 from lerobot_obsbench.envs import ObsBenchEnvConfig, TaskError
 from lerobot_obsbench.envs.maniskill import ObsBenchEnv
+from lerobot_obsbench.envs.task import task_spec
 
 pytestmark = pytest.mark.slow
 BIN = Path(sys.executable).parent
@@ -58,8 +59,13 @@ def test_env_speaks_the_schema(env):
         "observation.cam2world.base_camera",
         "observation.state",
         "observation.environment_state",
+        "observation.privileged_state",
     }
     assert schema.frame_to_env_observation(frame).keys() == obs.keys()
+    # the oracle's input: the cube's and the goal's poses (xyz + quaternion wxyz), as the simulator has them
+    cube, goal = env.unwrapped_ms.cube.pose, env.unwrapped_ms.goal_site.pose
+    expected = np.concatenate([cube.p[0].numpy(), cube.q[0].numpy(), goal.p[0].numpy(), goal.q[0].numpy()])
+    np.testing.assert_allclose(frame["observation.privileged_state"], expected, atol=1e-6)
 
 
 def test_unprojected_depth_matches_maniskill_pointcloud(env):
@@ -390,6 +396,9 @@ def test_demos_for_every_task_with_an_expert(task, tmp_path):
     assert ds.meta.total_episodes == episodes and len(info["seeds"]) == episodes
     assert 0 < info["expert_success_rate"] <= 1
     assert ds[0]["observation.depth.base_camera"].shape == (32, 32, 1)
+    # the oracle's object poses are recorded with the sensors
+    actors = task_spec(task).privileged_actors
+    assert actors and ds[0]["observation.privileged_state"].shape == (7 * len(actors),)
 
 
 def test_demo_errors(tmp_path):

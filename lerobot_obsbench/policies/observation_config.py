@@ -265,9 +265,10 @@ class ObservationConfig:
         `input_features`: LeRobot's normaliser must not touch depth (mm), K or cam2world, and RGB is
         normalised by the adapter so that training and evaluation see identical inputs."""
         sensors = {k: ft for k, ft in self.input_features.items() if is_sensor_key(k)}
-        if self.obs_space in ORACLE_SPACES and (sensors or not self.privileged_state_dim):
-            validate_features(self.input_features, self.obs_space)
-            self.privileged_state_dim = int(self.input_features[PRIVILEGED_STATE_KEY].shape[0])
+        if self.obs_space in ORACLE_SPACES:
+            if sensors or not self.privileged_state_dim:  # a dataset's features; a loaded checkpoint has the size
+                validate_features(self.input_features, self.obs_space)
+                self.privileged_state_dim = int(self.input_features[PRIVILEGED_STATE_KEY].shape[0])
         elif sensors or not self.cameras:
             calibration = self.depth_calibration
             self.cameras = validate_features(self.input_features, self.obs_space, self.cameras or None, calibration)

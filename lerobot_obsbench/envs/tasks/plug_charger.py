@@ -37,3 +37,4 @@ class PlugCharger(Task):
     grasped = CHARGER
     sub_success = ("grasp",)
     expert = PlugChargerExpert
+    privileged_actors = (CHARGER, "receptacle")
