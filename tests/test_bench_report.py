@@ -99,6 +99,7 @@ def stored(*views) -> list[dict]:
                 "method": v["method"],
                 "task": v["task"],
                 "checkpoint": f"runs/{v['run_id']}/last",
+                **({"diagnostics": v["diagnostics"]} if "diagnostics" in v else {}),
             }
         )
         for name, summary in v["evaluations"].items():
@@ -277,3 +278,52 @@ def test_blind_control_marks_and_per_seed_agreement(tmp_path):
     assert (
         "| T | obs_act/pointcloud/e | camera_yaw:10 | 0.60 [0.39, 0.78] (12/20) | 0.80 (16/20) | 16/20 | 4/20 |" in md
     )
+
+
+def test_controls_bracket_the_seeing_spaces_and_each_run_shows_its_outcomes_and_diagnostics(tmp_path):
+    n = 20
+
+    def run(run_id, space, outcomes, diagnostics=None):
+        r = record(run_id, "T", space, outcomes.count("1"), episodes=n)
+        r["evaluations"]["none"]["per_seed"] = _per_seed(outcomes, [9 if o == "1" else 50 for o in outcomes])
+        if diagnostics:
+            r["diagnostics"] = diagnostics
+        return r
+
+    records = [
+        run("b", "none", "111" + "." * 17),
+        run("o", "state", "1" * 18 + ".."),
+        run(
+            "p",
+            "pointcloud",
+            "1" * 13 + "." * 7,
+            {
+                "loss_curve": [[10, 0.5], [20, 0.25]],
+                "open_loop_error": 0.125,
+                "object_pixels": {"obj": 4.5},
+                "object_token_share": 0.875,
+            },
+        ),
+        run("r", "rgb", "..111" + "." * 15, {"loss_curve": [[20, 0.3]], "error": "ValueError: no frames"}),
+    ]
+    report = build_report(stored(*records))
+    controls = report["checks"]["controls"]["T"]
+    assert set(controls) == {"obs_act/pointcloud/e", "obs_act/rgb/e"}  # the controls are not bracketed
+    assert controls["obs_act/pointcloud/e"]["gain_fraction"] == pytest.approx((13 - 3) / (18 - 3))
+    assert controls["obs_act/rgb/e"]["gain_fraction"] == pytest.approx(0.0)
+    assert (controls["obs_act/rgb/e"]["blind"], controls["obs_act/rgb/e"]["oracle"]) == (0.15, 0.9)
+    md = write_report(report, tmp_path / "rep")["markdown"].read_text()
+    assert "| T | obs_act/pointcloud/e | 0.15 | 0.65 | 0.90 | 0.67 |" in md
+    assert "| T | obs_act/rgb/e | 0 | 0..19 | 00111000000000000000 |" in md  # per test seed, 1 = success
+    assert "| T | obs_act/pointcloud/e | 0 | 0.250 (step 20) | 0.125 | obj 4.5 px | 0.88 |" in md
+    assert "ValueError: no frames" in md  # a failed diagnostic is shown, not hidden
+    assert (tmp_path / "rep" / "training_loss.png").stat().st_size > 1000
+    # an oracle that does not beat blind leaves nothing to recover: no fraction
+    flat = build_report(
+        stored(
+            run("b", "none", "1" * 10 + "." * 10),
+            run("o", "state", "1" * 9 + "." * 11),
+            run("p", "pointcloud", "1" * 12 + "." * 8),
+        )
+    )
+    assert flat["checks"]["controls"]["T"]["obs_act/pointcloud/e"]["gain_fraction"] is None
