@@ -31,6 +31,8 @@ from lerobot_obsbench.schema import (
     IMAGE_PREFIX,
     INTRINSICS_PREFIX,
     OBS_SPACES,
+    ORACLE_SPACES,
+    PRIVILEGED_STATE_KEY,
     SPACE_SENSORS,
     SchemaError,
     cam2world_key,
@@ -231,6 +233,10 @@ def validate_dataset(
     calibration = {cam: c.to_dict() for cam, c in read_calibration(root).items()}
     stock = [cam for cam in stock_depth_cameras(features) if cam in calibration]
     spaces = OBS_SPACES if obs_space == "all" else (obs_space,)
+    if obs_space == "all" and PRIVILEGED_STATE_KEY not in features:
+        # the oracle control exists only in simulation: not a defect of a real recording
+        spaces = tuple(s for s in spaces if s not in ORACLE_SPACES)
+        echo(f"n/a     {ORACLE_SPACES[0]:10s} the oracle control needs simulated object poses ({PRIVILEGED_STATE_KEY})")
     scans = None
     if not quick:
         used = {c for space in spaces for c in _used(features, space, cameras, calibration)}
@@ -244,7 +250,8 @@ def validate_dataset(
             failures += 1
             echo(f"FAILED  {space:10s} " + "\n                   ".join(problems))
         else:
-            echo(f"ok      {space:10s} cameras: {', '.join(used) or '(none: blind control)'}")
+            control = "oracle control: object poses" if space in ORACLE_SPACES else "blind control"
+            echo(f"ok      {space:10s} cameras: {', '.join(used) or f'(none: {control})'}")
     for scan in (scans or {}).values():
         for note in scan.notes:
             echo(f"note    {note}")
