@@ -57,6 +57,10 @@ DEPTH_NORMALIZATIONS = ("clip", "official")
 # official code's ("official": a random point per voxel also at evaluation, points shuffled in training so FPS
 # starts anywhere, tokenizer BatchNorm as the official code's).
 POINT_PIPELINES = ("plugin", "official")
+# How the xyz channels of point features are scaled: raw metres (the paper's code), or to [-1, 1] over the
+# workspace box ("box": DP3's code scales its clouds to [-1, 1] with the data's limits; the crop box is that limit).
+# Point positions (FPS, kNN, position embeddings) stay in metres either way.
+POINT_NORMALIZATIONS = ("metres", "box")
 # How an RLBench [qx, qy, qz, qw] becomes a rotation: as the paper's code reads it (as w, x, y, z), or truly.
 QUATERNION_MODES = ("pcm_compat", "xyzw")
 

@@ -10,7 +10,8 @@
                   workspace box (world frame, which also drops the ground; in training optionally jittered by
                   `workspace_jitter` per bound, as the official real-robot code), moved to the chosen frame, one point
                   per voxel (random in training; with `point_pipeline="official"` also in evaluation, and
-                  points shuffled in training); features are rgb in [-1, 1] and/or xyz in metres.
+                  points shuffled in training); features are rgb in [-1, 1] and/or xyz in metres (or, with
+                  `point_normalization="box"`, in [-1, 1] over the workspace box, as DP3 scales its clouds).
                   A frame with no valid point inside the box (a depth dropout, a hand over the camera) becomes
                   the empty-cloud point: one point at the box centre with colour 0, so training and rollouts
                   go on; such frames are counted and logged, and training stops when more than half of its
@@ -36,6 +37,7 @@ from lerobot_obsbench.schema import (
     DEPTH_NORMALIZATIONS,
     FRAMES,
     POINT_FEATURES,
+    POINT_NORMALIZATIONS,
     POINT_PIPELINES,
     PRIVILEGED_STATE_KEY,
     STATE_KEY,
@@ -85,6 +87,7 @@ class ObservationAdapter(nn.Module):
         depth_normalization: str = "clip",
         point_pipeline: str = "plugin",
         workspace_jitter: float = 0.0,
+        point_normalization: str = "metres",
     ):
         super().__init__()
         if not cameras and obs_space not in CONTROL_SPACES:
@@ -99,6 +102,9 @@ class ObservationAdapter(nn.Module):
         self.depth_clip = (float(depth_clip[0]), float(depth_clip[1]))
         self.depth_normalization = check_choice("depth_normalization", depth_normalization, DEPTH_NORMALIZATIONS)
         self.official_points = check_choice("point_pipeline", point_pipeline, POINT_PIPELINES) == "official"
+        self.box_scaled = check_choice("point_normalization", point_normalization, POINT_NORMALIZATIONS) == "box"
+        if self.box_scaled and self.frame != "world":
+            raise ValueError(f"point_normalization='box' scales world coordinates by the crop box; frame={frame!r}")
         if workspace_jitter < 0:
             raise ValueError(f"workspace_jitter must be >= 0 metres; got {workspace_jitter}")
         self.workspace_jitter = float(workspace_jitter)
@@ -243,10 +249,14 @@ class ObservationAdapter(nn.Module):
         xyz, rgb, mask = geometry.pack(keep, xyz, rgb)
         if self.training and self.official_points:  # FPS then starts from a random point, as in the official code
             xyz, rgb, mask = geometry.shuffle(mask, xyz, rgb)
+        scaled = xyz
+        if self.box_scaled:  # the nominal box, also when jittered: the same point gets the same features
+            bounds = torch.tensor(self.workspace, dtype=xyz.dtype, device=xyz.device).reshape(3, 2)
+            scaled = (xyz - bounds.mean(-1)) / ((bounds[:, 1] - bounds[:, 0]) / 2)
         if self.point_features == "rgb+xyz":
-            feats = torch.cat([rgb, xyz], -1)
+            feats = torch.cat([rgb, scaled], -1)
         else:
-            feats = xyz if self.point_features == "xyz" else rgb
+            feats = scaled if self.point_features == "xyz" else rgb
         return PointCloud(xyz=xyz * mask[..., None], features=feats * mask[..., None], mask=mask)
 
     def _count_empty(self, empty: int, frames: int) -> None:

@@ -77,6 +77,29 @@ def test_point_feature_choices(batch, features, channels):
         assert torch.equal(cloud.features, cloud.xyz)
 
 
+def test_box_normalised_point_features_span_the_crop_box(batch):
+    """point_normalization="box": the xyz features are the points' coordinates mapped to [-1, 1] over the box (as
+    DP3 scales its clouds); positions, colours and the sampled points stay those of the metric cloud."""
+    box = (-0.2, 0.2, -0.3, 0.3, 0.005, 0.105)
+    metric = ObservationAdapter("pointcloud", [CAM], workspace=box).eval()(batch)
+    scaled = ObservationAdapter("pointcloud", [CAM], workspace=box, point_normalization="box").eval()(batch)
+    torch.testing.assert_close(scaled.xyz, metric.xyz)
+    torch.testing.assert_close(scaled.features[..., :3], metric.features[..., :3])  # colour unchanged
+    centre, half = torch.tensor([0.0, 0.0, 0.055]), torch.tensor([0.2, 0.3, 0.05])
+    expected = (metric.xyz - centre) / half * metric.mask[..., None]
+    torch.testing.assert_close(scaled.features[..., 3:], expected)
+    inside = scaled.features[..., 3:][scaled.mask]
+    assert inside.abs().max() <= 1 + 1e-6 and inside.abs().max() > 0.3  # the cube fills part of the box
+    with pytest.raises(ValueError, match="point_normalization='box'.*frame='camera'"):
+        ObservationAdapter("pointcloud", [CAM], frame="camera", point_normalization="box")
+    with pytest.raises(ValueError, match="point_normalization"):
+        ObservationAdapter("pointcloud", [CAM], point_normalization="unit")
+    from lerobot_obsbench.policies.obs_act.configuration_obs_act import ObsACTConfig
+
+    with pytest.raises(ValueError, match="point_normalization='box'.*obs_space='rgb'"):
+        ObsACTConfig(obs_space="rgb", point_normalization="box")
+
+
 def test_camera_and_ee_frames(batch):
     cam2world = batch[f"observation.cam2world.{CAM}"]
     # pointmap in the camera frame: z is exactly the stored depth

@@ -26,6 +26,7 @@ from lerobot_obsbench.schema import (
     FRAMES,
     ORACLE_SPACES,
     POINT_FEATURES,
+    POINT_NORMALIZATIONS,
     POINT_PIPELINES,
     POINT_SPACES,
     PRIVILEGED_STATE_KEY,
@@ -120,6 +121,9 @@ class ObservationConfig:
     # or "official" (a random point per voxel also at evaluation, points shuffled in training, the tokenizer's
     # BatchNorm with PyTorch's defaults and statistics over repeated seed slots, as the official code).
     point_pipeline: str = "plugin"
+    # Scale of the xyz point features: "metres" (the paper's) or "box" ([-1, 1] over `workspace`, as DP3's code
+    # scales its clouds; world frame only). Point positions stay in metres.
+    point_normalization: str = "metres"
     # AdamW of the paper's training recipe (Appendix C): weight decay, betas, eps.
     optimizer_weight_decay: float = 0.05
     optimizer_betas: tuple[float, float] = (0.9, 0.999)
@@ -201,6 +205,7 @@ class ObservationConfig:
         check_choice("sampling", self.sampling, SAMPLING)
         check_choice("depth_normalization", self.depth_normalization, DEPTH_NORMALIZATIONS)
         check_choice("point_pipeline", self.point_pipeline, POINT_PIPELINES)
+        check_choice("point_normalization", self.point_normalization, POINT_NORMALIZATIONS)
         if self.image_input_size is not None and self.image_input_size < 16:
             raise ValueError(f"image_input_size must be >= 16 pixels or None; got {self.image_input_size}")
         if self.optimizer_grad_clip_norm < 0:
@@ -245,6 +250,12 @@ class ObservationConfig:
             raise ValueError(
                 f"workspace_jitter={self.workspace_jitter} jitters the point-cloud crop; obs_space={self.obs_space!r} "
                 "crops nothing (use obs_space='pointcloud' or leave workspace_jitter=0)"
+            )
+        if self._non_default("point_normalization") and (self.obs_space not in POINT_SPACES or self.frame != "world"):
+            raise ValueError(
+                f"point_normalization={self.point_normalization!r} scales world-frame point clouds by the crop box; "
+                f"obs_space={self.obs_space!r} with frame={self.frame!r} has none (use obs_space='pointcloud' with "
+                "frame='world', or leave point_normalization='metres')"
             )
         if self.frame != "world" and self.obs_space not in ("pointcloud", "pointmap"):
             raise ValueError(

@@ -72,6 +72,7 @@ class ObservationEncoder(nn.Module):
             depth_clip=tuple(config.depth_clip),
             depth_normalization=config.depth_normalization,
             point_pipeline=config.point_pipeline,
+            point_normalization=config.point_normalization,
             workspace_jitter=config.workspace_jitter,
         )
         options = config.encoder_options()
