@@ -6,7 +6,8 @@
   channels, the official depth / xyz scaling and point-sampling details, Diffusion Policy's official point-cloud
   head and weight-decay exemptions, gradient clipping at 0.5 and the per-policy OneCycle warm-up. Needs a GPU.
 - `cpu`: small models that train in minutes on a 2-core CPU (README main job): ResNet-18 instead of ResNet-50
-  for images, 128 point tokens. Not the paper's setting: results from it are smoke tests, never a reproduction.
+  for images, 128 point tokens, DP3 on xyz scaled to the crop box (DP3's own setting). Not the paper's setting:
+  results from it are never a reproduction.
 - `tiny`: the smallest sizes that still exercise every code path (tests).
 - `real-one-arm` / `real-two-arms`: the paper's real-robot tasks (Reach / Pick Cube, Fold Cloth; see
   `lerobot_obsbench.robots.tasks`): ACT at lr 5e-5 with chunk 20 / 40, the crop box in the ChArUco world frame.
@@ -70,6 +71,8 @@ PRESETS: dict[str, dict[tuple[str, str], dict[str, object]]] = {
         (DP, "all"): {"down_dims": [64, 128, 256], "diffusion_step_embed_dim": 64, "num_inference_steps": 20},
         ("*", "image"): {"encoder": "resnet18"},
         ("*", "point"): {"num_tokens": 128},
+        # DP3 as its code runs: xyz points scaled to [-1, 1] (here over the crop box)
+        ("*", "dp3"): {"point_features": "xyz", "point_normalization": "box"},
     },
     "tiny": {
         (ACT, "all"): {
