@@ -48,12 +48,17 @@ def test_presets_expand_and_validate():
     # an evaluation-only grid names runs of the training grid: the same training identities
     assert {r.run_id for r in sizes["paper-generalization"]} <= {r.run_id for r in sizes["paper-main"]}
     quick = sizes["quick"]
-    assert {"none", "rgb", "pointcloud"} <= {r.obs_space for r in quick}  # the blind control and two spaces
-    assert {s.perturbation for r in quick for s in load_grid("quick").evaluations(r)} == {
-        "none",
-        "camera_yaw:10",
-        "camera_pitch:10",
-    }
+    # the two controls bracket two seeing spaces
+    assert {"none", "state", "rgb", "pointcloud"} <= {r.obs_space for r in quick}
+    quick_grid = load_grid("quick")
+    moved = {"none", "camera_yaw:10", "camera_pitch:10"}
+    for r in quick:  # the camera moves only for the spaces that read it
+        expected = {"none"} if r.obs_space in ("none", "state") else moved
+        assert {s.perturbation for s in quick_grid.evaluations(r)} == expected
+    # the crop box of the task reaches its point-cloud runs, and only them
+    workspaces = {r.obs_space: dict(r.policy_overrides).get("workspace") for r in quick}
+    assert workspaces["pointcloud"] == [-0.2, 0.45, -0.35, 0.35, 0.005, 0.1] and workspaces["rgb"] is None
+    assert quick_grid.held_out_demos > 0
 
 
 def test_variants_are_an_axis_and_a_column_label():

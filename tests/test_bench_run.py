@@ -248,3 +248,26 @@ def test_best_checkpoint_is_chosen_on_the_validation_seeds(tmp_path):
         assert tests["best"]["per_seed"] == tests["last"]["per_seed"]
     else:
         assert "copied_from" not in tests["best"]
+
+
+def test_a_grid_run_records_its_diagnostics_on_held_out_demos_and_the_report_shows_them(tmp_path):
+    grid = one_run_grid(
+        tmp_path / "diag.yaml",
+        ("demos: [2]", "demos: [2]\nheld_out_demos: 1"),
+        ("obs_spaces: [rgb]", "obs_spaces: [pointcloud]"),
+    )
+    out = tmp_path / "out"
+    finish("run", str(grid), "--out", str(out))
+    (train,) = by_kind(quiet(out / "results.jsonl"), "train")
+    found = train["diagnostics"]
+    assert "error" not in found, found
+    # 3 demonstrations recorded, the last never trained on
+    assert found["held_out_episodes"] == [2] and train["config"]["demos"] == 2
+    steps = [step for step, _ in found["loss_curve"]]
+    assert steps and steps[-1] <= 3 and all(loss > 0 for _, loss in found["loss_curve"])
+    assert found["open_loop_error"] > 0
+    assert 0 <= found["object_token_share"] <= 1 and found["object_pixels"]["obj"] > 1
+    finish("report", str(out / "results.jsonl"))
+    md = (out / "report" / "report.md").read_text()
+    assert "Diagnostics per run" in md and f"{found['open_loop_error']:.3f}" in md
+    assert (out / "report" / "training_loss.png").is_file()

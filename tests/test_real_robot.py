@@ -93,7 +93,8 @@ def test_record_train_and_roll_out_on_the_fake_bimanual_robot(tmp_path, syntheti
     assert features["observation.depth.top"]["dtype"] == "uint16"
     assert tuple(features["observation.depth.top"]["shape"]) == (H, W, 1)
     assert features["observation.state"]["names"][0] == "left_shoulder_pan.pos"
-    assert obsbench(["validate", "--root", str(root), "--repo-id", "local/obsbench_real"]) == 0
+    assert "observation.privileged_state" not in features  # no oracle on a real robot
+    assert obsbench(["validate", "--root", str(root), "--repo-id", "local/obsbench_real"]) == 0  # state: n/a
 
     # the recorded depth, K and cam2world put every pixel on the analytic scene
     frame = dataset[0]
