@@ -24,7 +24,7 @@ install: $(STAMP)
 # Resumable: rerunning after an interruption skips finished runs.
 main: $(STAMP)
 	$(BIN)/obsbench run quick --out outputs/bench/quick --workers 2
-	$(BIN)/obsbench report outputs/bench/quick/results.jsonl --title "OBSBench quick (CPU smoke test)" \
+	$(BIN)/obsbench report outputs/bench/quick/results.jsonl --title "OBSBench quick: controls vs seeing spaces (CPU, not the paper's protocol)" \
 		--json outputs/bench/quick/summary.json
 
 # Code checks (configured in pyproject.toml): ruff lint + format, and the import-layer contracts.

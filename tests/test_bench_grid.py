@@ -257,3 +257,18 @@ def test_training_progress_reads_the_total_loss_of_lerobot_061_logs(tmp_path):
         "loss:0.130 grdn:0.511 lr:8.4e-06 l1_loss:0.129 kld_loss:0.000\n"
     )
     assert training_progress(tmp_path, "r1") == {"step": 1920, "steps": 2000, "loss": 0.13, "started": 0.0}
+
+
+def test_loss_curve_numbers_lerobots_rounded_steps_from_the_log_frequency():
+    """From 1,000 on lerobot-train prints steps rounded to thousands ("step:1K" for 1020 and 1080 alike): each
+    such line is the next multiple of the log frequency, counted from where the run (re)started."""
+    from lerobot_obsbench.bench.diagnostics import loss_curve
+
+    def line(step: str, loss: float) -> str:
+        return f"Training:  5%|5| 1/9 [00:01<00:08]INFO ot_train.py:641 step:{step} smpl:9K loss:{loss} l1_loss:0.1\r"
+
+    log = "\n=== 2026-11-25T00:00:00+00:00 starting ===\n" + "".join(
+        line(step, loss) for step, loss in (("960", 0.5), ("1K", 0.4), ("1K", 0.35), ("1K", 0.3))
+    )
+    log += "\n=== 2026-11-25T00:10:00+00:00 resuming at step 1500 ===\n" + line("2K", 0.2) + line("2K", 0.1)
+    assert loss_curve(log, 60) == [[960, 0.5], [1020, 0.4], [1080, 0.35], [1140, 0.3], [1560, 0.2], [1620, 0.1]]

@@ -30,16 +30,29 @@ from lerobot_obsbench.schema import (
     intrinsics_key,
 )
 
-LOSS_PATTERN = re.compile(r"(?<!\w)step:(\d+)\S*\s.*?(?<!\w)loss:([0-9.eE+-]+)")
+LOSS_PATTERN = re.compile(r"(?<!\w)step:(\d+)([KMB]?)\s.*?(?<!\w)loss:([0-9.eE+-]+)")
+# the line the grid's train unit writes before each lerobot-train start (units.train_unit)
+START_PATTERN = re.compile(r"^=== \S+ (?:resuming at step (\d+)|starting) ===")
 
 
-def loss_curve(log_text: str) -> list[list[float]]:
-    """[[step, loss], ...] from a lerobot-train log (its `step:N ... loss:X` lines; the total loss, not l1_loss)."""
-    curve = {}
+def loss_curve(log_text: str, log_every: int) -> list[list[float]]:
+    """[[step, loss], ...] from a grid run's lerobot-train log (its `step:N ... loss:X` lines: the total loss, not
+    l1_loss), logged every `log_every` steps.
+
+    lerobot-train prints steps from 1,000 on rounded to thousands ("step:2K"), so such a line's step is the next
+    multiple of `log_every` after the previous line's, or after the step a resumed run started from."""
+    curve: dict[int, float] = {}
+    last = 0
     for line in log_text.replace("\r", "\n").splitlines():
+        start = START_PATTERN.search(line)
+        if start:
+            last = int(start.group(1) or 0)
+            continue
         found = LOSS_PATTERN.search(line)
         if found:
-            curve[int(found.group(1))] = float(found.group(2))
+            value, rounded, loss = found.groups()
+            last = (last // log_every + 1) * log_every if rounded else int(value)
+            curve[last] = float(loss)
     return [[step, loss] for step, loss in sorted(curve.items())]
 
 

@@ -100,6 +100,11 @@ def demo_frames(dataset: Path, episodes: int) -> int:
 # ---- training ----------------------------------------------------------------------------------------------
 
 
+def log_every(steps: int) -> int:
+    """lerobot-train's `--log_freq` for a run of `steps`: about 50 loss lines, at most every 200 steps."""
+    return max(min(steps // 50, 200), 1)
+
+
 def _cli_value(value) -> str:
     return "[" + ",".join(str(v) for v in value) + "]" if isinstance(value, (list, tuple)) else str(value)
 
@@ -133,7 +138,7 @@ def train_command(
         f"--batch_size={run.batch_size}",
         f"--steps={steps}",
         f"--save_freq={save_every}",
-        f"--log_freq={max(min(steps // 50, 200), 1)}",
+        f"--log_freq={log_every(steps)}",
         f"--num_workers={loader_workers}",
         "--wandb.enable=false",
         f"--output_dir={output_dir}",
@@ -235,19 +240,22 @@ def train_unit(
         "resumed_from": resumed_from,
         "device": device,
         "timings": {"train_s": train_s},
-        "diagnostics": run_diagnostics(run, root, Path(saved[steps]), Path(dataset), held_out, device),
+        "diagnostics": run_diagnostics(run, root, steps, Path(saved[steps]), Path(dataset), held_out, device),
         "versions": versions(),
         "finished_at": now(),
     }
 
 
-def run_diagnostics(run: RunSpec, root: Path, checkpoint: Path, dataset: Path, held_out: int, device: str) -> dict:
-    """The run's loss curve, and its held-out diagnostics on the dataset's last `held_out` episodes (which no run
-    trains on). A failure is recorded in place of the held-out figures, not raised: the trained run is kept."""
+def run_diagnostics(
+    run: RunSpec, root: Path, steps: int, checkpoint: Path, dataset: Path, held_out: int, device: str
+) -> dict:
+    """The run's loss curve (a run of `steps`), and its held-out diagnostics on the dataset's last `held_out`
+    episodes (which no run trains on). A failure is recorded in place of the held-out figures, not raised: the
+    trained run is kept."""
     from lerobot_obsbench.bench.diagnostics import held_out_diagnostics, loss_curve
     from lerobot_obsbench.envs.task import task_spec
 
-    out: dict = {"loss_curve": loss_curve((root / "train.log").read_text())}
+    out: dict = {"loss_curve": loss_curve((root / "train.log").read_text(), log_every(steps))}
     if held_out:
         total = demo_count(dataset)
         episodes = list(range(total - held_out, total))
