@@ -36,6 +36,7 @@ from lerobot_obsbench.schema import (
     CONTROL_SPACES,
     DEPTH_NORMALIZATIONS,
     FRAMES,
+    ORACLE_SPACES,
     POINT_FEATURES,
     POINT_NORMALIZATIONS,
     POINT_PIPELINES,
@@ -185,7 +186,7 @@ class ObservationAdapter(nn.Module):
         if self.obs_space in BLIND_SPACES:
             state = _require(batch, STATE_KEY)
             return state.new_zeros(state.shape[0], 0)
-        if self.obs_space in CONTROL_SPACES:
+        if self.obs_space in ORACLE_SPACES:
             return _require(batch, PRIVILEGED_STATE_KEY).float()
         if self.obs_space == "pointcloud":
             return self._pointcloud(batch, ee_pose)

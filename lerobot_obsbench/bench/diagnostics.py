@@ -25,7 +25,6 @@ from lerobot_obsbench.schema import (
     POINT_SPACES,
     POSE_SIZE,
     PRIVILEGED_STATE_KEY,
-    SPACE_SENSORS,
     cam2world_key,
     intrinsics_key,
 )
@@ -104,7 +103,8 @@ def held_out_diagnostics(checkpoint: str | Path, dataset: str | Path, episodes: 
     )
     errors, shares, pixels = [], [], {}
     has_objects = bool(task.objects) and PRIVILEGED_STATE_KEY in meta.features
-    adapter = policy.observation_encoder().adapter
+    adapter = policy.observation_encoder().adapter  # in eval mode, as load_policy returns the policy
+    cam = config.cameras[0] if config.cameras else None  # the controls read no camera
     loader = torch.utils.data.DataLoader(data, batch_size=32, shuffle=False)
     with torch.inference_mode():
         for batch in loader:
@@ -120,13 +120,11 @@ def held_out_diagnostics(checkpoint: str | Path, dataset: str | Path, episodes: 
             }
             privileged = frame[PRIVILEGED_STATE_KEY].cpu().numpy()
             found = object_positions(privileged, task.privileged_actors, task.objects)
-            cam = config.cameras[0] if config.cameras else None
             if cam and intrinsics_key(cam) in frame:
                 K, cam2world = frame[intrinsics_key(cam)].cpu().numpy(), frame[cam2world_key(cam)].cpu().numpy()
                 for name, (positions, radius) in found.items():
                     pixels.setdefault(name, []).append(pixel_diameters(positions, radius, K, cam2world))
             if config.obs_space in POINT_SPACES and config.frame == "world":
-                adapter.eval()
                 cloud = adapter(policy.calibrated_depth(frame))
                 centres = [torch.as_tensor(p, dtype=cloud.xyz.dtype) for p, _ in found.values()]
                 shares.append(
@@ -136,7 +134,7 @@ def held_out_diagnostics(checkpoint: str | Path, dataset: str | Path, episodes: 
                     )
                 )
     out: dict = {"held_out_episodes": list(episodes), "open_loop_error": round(float(torch.cat(errors).mean()), 4)}
-    if pixels and SPACE_SENSORS[config.obs_space]:
+    if pixels:
         out["object_pixels"] = {name: round(float(np.concatenate(v).mean()), 2) for name, v in pixels.items()}
     if shares:
         total = sum(n for _, n in shares)

@@ -215,14 +215,18 @@ def beats_blind(records: list[dict], cells: dict[str, dict[str, Cell]]) -> dict[
     configs = _label_configs(records)
     out: dict[str, dict[str, bool]] = {}
     for task, row in cells.items():
-        blind = [m for m in row if configs[m]["obs_space"] in BLIND_SPACES]
         for method, cell in row.items():
-            if method in blind:
+            if configs[method]["obs_space"] in BLIND_SPACES:
                 continue
-            controls = [row[b] for b in blind if configs[b]["policy"] == configs[method]["policy"]]
+            controls = _controls(row, configs, BLIND_SPACES, configs[method]["policy"])
             if controls:
                 out.setdefault(task, {})[method] = cell.ci95[0] > max(c.ci95[1] for c in controls)
     return out
+
+
+def _controls(row: dict[str, Cell], configs: dict[str, dict], spaces: tuple[str, ...], policy: str) -> list[Cell]:
+    """The cells of one task's row whose space is one of `spaces` (a control) and whose policy type is `policy`."""
+    return [c for m, c in row.items() if configs[m]["obs_space"] in spaces and configs[m]["policy"] == policy]
 
 
 def control_brackets(records: list[dict], cells: dict[str, dict[str, Cell]]) -> dict[str, dict[str, dict]]:
@@ -238,12 +242,8 @@ def control_brackets(records: list[dict], cells: dict[str, dict[str, Cell]]) -> 
                 continue
             best = {}
             for kind, spaces in (("blind", BLIND_SPACES), ("oracle", ORACLE_SPACES)):
-                rates_ = [
-                    c.rate
-                    for m, c in row.items()
-                    if configs[m]["obs_space"] in spaces and configs[m]["policy"] == policy
-                ]
-                best[kind] = max(rates_) if rates_ else None
+                controls = _controls(row, configs, spaces, policy)
+                best[kind] = max(c.rate for c in controls) if controls else None
             if best["blind"] is None or best["oracle"] is None:
                 continue
             gain = best["oracle"] - best["blind"]

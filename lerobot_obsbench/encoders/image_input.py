@@ -12,6 +12,11 @@ from torch import Tensor
 VIT_RESIZE_RATIO = 256 / 224
 
 
+def as_frame_size(image_size: int | tuple[int, int] | list[int]) -> tuple[int, int]:
+    """A builder's `image_size` (one side of a square frame, or (height, width)) as (height, width)."""
+    return (image_size, image_size) if isinstance(image_size, int) else tuple(image_size)
+
+
 def resize(images: Tensor, size: int, mode: str = "bilinear") -> Tensor:
     """(N, C, H, W) -> (N, C, size, size) (torchvision's Resize of a square frame, antialiased)."""
     if images.shape[-2:] == (size, size):

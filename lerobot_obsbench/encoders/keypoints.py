@@ -28,7 +28,7 @@ from lerobot.policies.act.modeling_act import create_sinusoidal_pos_embedding
 from lerobot.policies.diffusion.modeling_diffusion import SpatialSoftmax
 from torch import Tensor, nn
 
-from lerobot_obsbench.encoders.image_input import resize
+from lerobot_obsbench.encoders.image_input import as_frame_size, resize
 from lerobot_obsbench.encoders.registry import EncoderContext, EncoderOutput, register_encoder
 from lerobot_obsbench.schema import IMAGE_SPACES, input_channels
 
@@ -132,7 +132,7 @@ def build_spatial_softmax(
 ) -> SpatialSoftmaxEncoder:
     """`image_size`: the camera frame size (height, width) or one side, which the soft-argmax grid is built for,
     or `input_size` when frames are resized to it first; `num_keypoints`: K per camera."""
-    size = (image_size, image_size) if isinstance(image_size, int) else tuple(image_size)
+    size = as_frame_size(image_size)
     return SpatialSoftmaxEncoder(
         input_channels(obs_space),
         output,

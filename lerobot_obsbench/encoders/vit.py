@@ -25,7 +25,7 @@ import torch.nn.functional as F
 from lerobot.policies.act.modeling_act import create_sinusoidal_pos_embedding
 from torch import Tensor, nn
 
-from lerobot_obsbench.encoders.image_input import resize_center_crop, zero_extra_channels
+from lerobot_obsbench.encoders.image_input import as_frame_size, resize_center_crop, zero_extra_channels
 from lerobot_obsbench.encoders.pretrained import expand_input_channels, load_matching, read_state_dict
 from lerobot_obsbench.encoders.registry import EncoderContext, EncoderOutput, register_encoder
 from lerobot_obsbench.schema import IMAGE_SPACES, input_channels
@@ -216,7 +216,7 @@ def build_vit(
 ) -> ViTEncoder:
     """`image_size`: the camera frame size (height, width) or one side; the patch grid is built for it, or for
     `input_size` (the official resize + centre crop) when given."""
-    size = (image_size, image_size) if isinstance(image_size, int) else tuple(image_size)
+    size = as_frame_size(image_size)
     return ViTEncoder(
         input_channels(obs_space),
         output,

@@ -26,6 +26,7 @@ from lerobot_obsbench.envs.perturbations import apply_scene_perturbation, camera
 from lerobot_obsbench.envs.task import TaskError, asset_help, first, missing_assets, task_spec, to_numpy
 from lerobot_obsbench.schema import (
     ENV_STATE_KEY,
+    POSE_SIZE,
     PRIVILEGED_STATE_KEY,
     STATE_KEY,
     cam2world_key,
@@ -163,7 +164,7 @@ class ObsBenchEnv(gym.Env):
         size = (image_size, image_size)
         privileged = {}
         if spec.privileged_actors:
-            shape = (len(spec.privileged_actors) * 7,)
+            shape = (len(spec.privileged_actors) * POSE_SIZE,)
             privileged["privileged_state"] = gym.spaces.Box(-np.inf, np.inf, shape, np.float32)
         spaces = {
             "pixels": gym.spaces.Dict({c: gym.spaces.Box(0, 255, (*size, 3), np.uint8) for c in self.cameras}),
