@@ -256,12 +256,18 @@ def cmd_report(args: argparse.Namespace) -> int:
     table = resolve_table(args.table) if args.table else None
     published = read_published(table) if table else None
     report = build_report(
-        records, published, published_name=table.stem if table else "published", checkpoint=args.checkpoint
+        records,
+        published,
+        published_name=table.stem if table else "published",
+        checkpoint=args.checkpoint,
+        reference=args.reference,
     )
     out = args.out or (args.results.parent / "report" if args.results else Path("report"))
     paths = write_report(report, out, title=args.title)
     heading, (header, rows) = report["sections"][0]
     print(f"{heading}\n{markdown_table(header, rows)}")
+    for warning in report["warnings"]:
+        print(f"note: {warning}")
     for source, methods in report["summary"].items():
         for method, s in sorted(methods.items(), key=lambda kv: kv[1]["mean_rank"]):
             print(f"{source:9s} {method:45s} Mean S.R. {s['mean_sr']:.2f}  Mean Rank {s['mean_rank']:.2f}")
@@ -679,6 +685,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=None, help="report directory (default: next to the results)")
     p.add_argument("--json", type=Path, default=None, help="write mean_sr and mean_rank per method here")
     p.add_argument("--title", default="OBSBench report")
+    p.add_argument(
+        "--reference",
+        default=None,
+        help="a column label (as the tables print it): every method's probability of improvement over it is added "
+        "beside the one over its blind control",
+    )
     p.set_defaults(func=cmd_report)
 
     p = sub.add_parser(

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 
 def wilson_interval(successes: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
     """95% Wilson score interval of a success rate (well behaved at 0 and n successes, unlike the normal one)."""
@@ -16,3 +18,27 @@ def wilson_interval(successes: int, n: int, z: float = 1.959963984540054) -> tup
     centre = (p + z * z / (2 * n)) / denom
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
     return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def seeds_and_episodes_interval(
+    runs: list[tuple[int, int]], reps: int = 20000, level: float = 0.95, seed: int = 0
+) -> tuple[float, float]:
+    """Percentile interval of a pooled success rate that covers training-seed variance as well as evaluation
+    episodes: a two-level bootstrap over `runs` [(successes, episodes) of each training seed]. Each replicate
+    draws the training seeds with replacement, then redraws each drawn seed's rate from its own episodes, and
+    pools the episodes as the point estimate does. The episode level draws from the seed's Jeffreys posterior
+    Beta(k + 1/2, n - k + 1/2) rather than resampling its episodes, so a seed at 0/n or n/n still varies (the
+    same reason a Wilson interval is not empty there). `seed`: the bootstrap's own seed (reproducible reports)."""
+    if not runs:
+        raise ValueError("runs must name at least one training seed")
+    for k, n in runs:
+        if n <= 0 or not 0 <= k <= n:
+            raise ValueError(f"each run needs 0 <= successes <= episodes and episodes > 0; got {k}/{n}")
+    successes, episodes = np.array(runs, dtype=float).T
+    rng = np.random.default_rng(seed)
+    drawn = rng.integers(0, len(runs), size=(reps, len(runs)))
+    k, n = successes[drawn], episodes[drawn]
+    rates = (rng.beta(k + 0.5, n - k + 0.5) * n).sum(axis=1) / n.sum(axis=1)
+    tail = (1 - level) / 2
+    low, high = np.quantile(rates, [tail, 1 - tail])
+    return float(low), float(high)

@@ -152,6 +152,7 @@ def test_dry_run_prints_the_plan_and_skips_finished_runs(tmp_path, capsys):
     assert main(["run", str(grid), "--out", str(tmp_path), "--dry-run"]) == 0
     text = capsys.readouterr().out
     assert "4 runs, 0 already trained, 4 to train; 0 of 4 test evaluations done" in text
+    assert "one training seed" not in text
     runs = load_grid(grid).expand()
     train = {
         "kind": "train",
@@ -178,6 +179,12 @@ def test_dry_run_counts_steps_and_samples_in_the_papers_units(capsys):
     assert "total to do: 7481250 optimizer steps" in text
     assert "demo_epochs = the paper's epochs: one randomly sampled frame per demonstration per epoch" in text
     assert "h on a 2-core CPU" in text and "h on one H200 GPU" in text
+    assert "one training seed" not in text  # paper-main trains two seeds per learning rate
+
+
+def test_dry_run_warns_that_one_training_seed_cannot_show_training_variance(capsys):
+    assert main(["run", "quick", "--dry-run", "--out", "/nonexistent/out"]) == 0
+    assert "note: one training seed (1000)" in capsys.readouterr().out
 
 
 def test_training_identity_leaves_out_evaluation_and_checkpointing():

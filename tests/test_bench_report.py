@@ -8,11 +8,10 @@ import json
 import pytest
 
 from lerobot_obsbench.bench.report import (
-    Cell,
     ReportError,
     build_report,
+    cells_by_task,
     competition_ranks,
-    pooled_cells,
     read_published,
     summarize,
     summary_json,
@@ -168,22 +167,26 @@ def test_results_of_version_0_1_are_refused_with_the_conversion_command(tmp_path
     assert main(["report", str(path)]) == 0
 
 
-def test_seeds_pool_into_one_wilson_interval():
+def test_training_seeds_pool_their_episodes_and_widen_the_interval():
+    """One seed: the Wilson interval of its episodes. Several: the pooled rate, with an interval over seeds and
+    episodes, wider than the pooled Wilson one when the seeds disagree."""
     records = [
-        record("a", "T", "rgb", 3, seed=0),
-        record("b", "T", "rgb", 5, seed=1),
+        record("a", "T", "rgb", 2, seed=0),
+        record("b", "T", "rgb", 8, seed=1),
         record("c", "T", "pointcloud", 9, seed=0),
     ]
-    cells = pooled_cells(records)
-    assert cells["T"]["obs_act/rgb/e"] == Cell(8, 20)
-    assert cells["T"]["obs_act/rgb/e"].ci95 == wilson_interval(8, 20)
-    lo, hi = wilson_interval(8, 20)
-    assert 0.2 < lo < 0.4 < hi < 0.65  # independent sanity: Wilson 95% for 8/20 is about [0.22, 0.61]
+    cells = cells_by_task(records)
+    rgb, pointcloud = cells["T"]["obs_act/rgb/e"], cells["T"]["obs_act/pointcloud/e"]
+    assert (rgb.runs, rgb.successes, rgb.episodes, rgb.seeds, rgb.rate) == (((2, 10), (8, 10)), 10, 20, 2, 0.5)
+    assert pointcloud.ci95 == wilson_interval(9, 10)
+    lo, hi = rgb.ci95
+    pooled_lo, pooled_hi = wilson_interval(10, 20)
+    assert lo < pooled_lo and hi > pooled_hi  # the two seeds disagree: training variance widens it
 
 
 def test_varying_learning_rates_become_separate_columns():
     records = [record("a", "T", "rgb", 3, lr=1e-4), record("b", "T", "rgb", 5, lr=1e-3)]
-    assert set(pooled_cells(records)["T"]) == {"obs_act/rgb/e lr=0.0001", "obs_act/rgb/e lr=0.001"}
+    assert set(cells_by_task(records)["T"]) == {"obs_act/rgb/e lr=0.0001", "obs_act/rgb/e lr=0.001"}
 
 
 def test_report_files(tmp_path):
@@ -206,9 +209,11 @@ def test_report_files(tmp_path):
     assert "| Mean Rank | **1.00** | <u>1.50</u> |" in md  # T2 tie: both rank 1
     assert "Side by side on the shared tasks (T1)" in md and "ResNet50 (paper)" in md
     page = paths["html"].read_text()
-    assert page.count("data:image/png;base64,") == 3  # bars, light curve, sample efficiency
+    assert page.count("data:image/png;base64,") == 4  # bars, aggregates, light curve, sample efficiency
     assert "<b>0.80" in page
-    for name in ("success_by_task.png", "generalization_light.png", "sample_efficiency.png"):
+    # no blind control: no probability-of-improvement plot; one seed per column: said under the title
+    assert "probability_of_improvement.png" not in md and "> **Note:** One training seed behind" in md
+    for name in ("success_by_task.png", "aggregates.png", "generalization_light.png", "sample_efficiency.png"):
         assert (tmp_path / "rep" / name).read_bytes()[:4] == b"\x89PNG"
     summary = summary_json(report)
     assert summary["results"]["obs_act/pointcloud/e"] == {"mean_sr": 0.7, "mean_rank": 1.0, "tasks": 2}
@@ -260,10 +265,13 @@ def test_blind_control_marks_and_per_seed_agreement(tmp_path):
     ]
     report = build_report(stored(*records))
     blind = report["checks"]["beats_blind"]["T"]
-    assert blind == {"obs_act/pointcloud/e": True, "obs_act/rgb/e": False}
+    assert blind == {  # one training seed each: above blind is △, never ▲
+        "obs_act/pointcloud/e": {"above": True, "mark": "△", "seeds": 1, "blind_seeds": 1},
+        "obs_act/rgb/e": {"above": False, "mark": "", "seeds": 1, "blind_seeds": 1},
+    }
     assert wilson_interval(16, n)[0] > wilson_interval(3, n)[1] and wilson_interval(6, n)[0] < wilson_interval(3, n)[1]
     md = write_report(report, tmp_path / "rep")["markdown"].read_text()
-    assert "0.80 [0.58, 0.92] (16/20) ▲**" in md and "0.30 [0.15, 0.52] (6/20)</u>" in md
+    assert "0.80 [0.58, 0.92] (16/20) △**" in md and ") ▲" not in md and "0.30 [0.15, 0.52] (6/20)</u>" in md
     agreement = report["checks"]["agreement"]
     assert agreement["T | obs_act/none/e | camera_yaw:10"] == {
         "success": 3,
@@ -278,6 +286,45 @@ def test_blind_control_marks_and_per_seed_agreement(tmp_path):
     assert (
         "| T | obs_act/pointcloud/e | camera_yaw:10 | 0.60 [0.39, 0.78] (12/20) | 0.80 (16/20) | 16/20 | 4/20 |" in md
     )
+
+
+def test_a_lucky_seed_is_not_above_blind_and_a_consistent_method_is(tmp_path):
+    """Three training seeds: blind 5/30 on each, rgb 30/30 then 3/30 twice (36/90 pooled, above blind's pooled
+    Wilson interval), pointcloud 15/30 on each. Only pointcloud is ▲; the aggregates carry intervals."""
+    outcomes = {"none": (5, 5, 5), "rgb": (30, 3, 3), "pointcloud": (15, 15, 15)}
+    records = [
+        record(f"{space}{seed}", "T", space, k, episodes=30, seed=seed)
+        for space, ks in outcomes.items()
+        for seed, k in enumerate(ks)
+    ]
+    assert wilson_interval(36, 90)[0] > wilson_interval(15, 90)[1]  # pooling episodes would call rgb better
+    report = build_report(stored(*records))
+    blind = report["checks"]["beats_blind"]["T"]
+    assert blind["obs_act/rgb/e"] == {"above": False, "mark": "", "seeds": 3, "blind_seeds": 3}
+    assert blind["obs_act/pointcloud/e"] == {"above": True, "mark": "▲", "seeds": 3, "blind_seeds": 3}
+    aggregates = report["checks"]["aggregates"]
+    point, low, high = aggregates["obs_act/pointcloud/e"]["iqm"]
+    assert (point, low, high) == (pytest.approx(0.5), pytest.approx(0.5), pytest.approx(0.5))  # seeds agree
+    point, low, high = aggregates["obs_act/rgb/e"]["iqm"]  # 3 runs: nothing to trim, the IQM is the mean
+    assert point == pytest.approx(0.4) and low == pytest.approx(0.1) and high == pytest.approx(1.0)
+    improvement = report["checks"]["probability_of_improvement"]
+    # pointcloud beats every blind seed; rgb beats them on one seed of three
+    assert improvement["obs_act/pointcloud/e > obs_act/none/e"] == [1.0, 1.0, 1.0]
+    point, low, high = improvement["obs_act/rgb/e > obs_act/none/e"]
+    assert point == pytest.approx(1 / 3) and low == 0.0 and high == 1.0
+    assert report["warnings"] == []
+    paths = write_report(report, tmp_path / "rep")
+    md = paths["markdown"].read_text()
+    assert "(45/90, 3 seeds) ▲" in md and "(36/90, 3 seeds)" in md and "(36/90, 3 seeds) ▲" not in md
+    assert "| obs_act/rgb/e | 3 | 0.40 [0.10, 1.00] | 0.40 [0.10, 1.00] | 0.33 [0.00, 1.00] |" in md
+    for name in ("aggregates.png", "probability_of_improvement.png"):
+        assert (tmp_path / "rep" / name).read_bytes()[:4] == b"\x89PNG"
+    reference = build_report(stored(*records), reference="obs_act/pointcloud/e")
+    assert reference["checks"]["probability_of_improvement"]["obs_act/rgb/e > obs_act/pointcloud/e"][0] == (
+        pytest.approx(1 / 3)
+    )
+    with pytest.raises(ReportError, match="--reference 'rgb' is not a column"):
+        build_report(stored(*records), reference="rgb")
 
 
 def test_controls_bracket_the_seeing_spaces_and_each_run_shows_its_outcomes_and_diagnostics(tmp_path):

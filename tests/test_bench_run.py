@@ -271,3 +271,34 @@ def test_a_grid_run_records_its_diagnostics_on_held_out_demos_and_the_report_sho
     md = (out / "report" / "report.md").read_text()
     assert "Diagnostics per run" in md and f"{found['open_loop_error']:.3f}" in md
     assert (out / "report" / "training_loss.png").is_file()
+
+
+@pytest.mark.slow
+def test_the_same_run_on_the_same_machine_trains_bit_identical_weights(tiny_dataset, tmp_path):
+    """Reproducibility the report's training-seed intervals rest on: one run trained twice (the grid's own
+    training unit, threads pinned as the runner pins them) gives the same checkpoint, byte for byte; another
+    training seed does not. Across machines floating-point paths differ, which is why grids train seeds."""
+    from lerobot_obsbench.bench.grid import parse_grid
+    from lerobot_obsbench.bench.units import train_unit
+
+    grid = parse_grid(
+        {
+            "name": "reproducibility",
+            "tasks": ["PushCube-v1"],
+            "obs_spaces": ["pointcloud"],
+            "encoders": {"pointcloud": ["dp3"]},
+            "demos": [6],
+            "seeds": [3, 4],
+            "steps": 4,
+            "batch_size": 2,
+            "preset": "tiny",
+            "policy_overrides": {"workspace": [-0.5, 0.5, -0.5, 0.5, 0.005, 0.5]},
+        }
+    )
+    first, other_seed = grid.expand()
+    weights = []
+    for run, out in ((first, "a"), (first, "b"), (other_seed, "c")):
+        record = train_unit(run.config(), str(tiny_dataset), str(tmp_path / out), checkpoints=1, threads=2)
+        weights.append(Path(record["checkpoint"], "model.safetensors").read_bytes())
+    assert weights[0] == weights[1]
+    assert weights[0] != weights[2]

@@ -28,12 +28,13 @@ import json
 import math
 from collections import defaultdict
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 from lerobot_obsbench.bench.package_data import path_or_shipped, shipped
 from lerobot_obsbench.envs.perturbations import NOMINAL_VALUE, parse_perturbation
 from lerobot_obsbench.schema import BLIND_SPACES, CONTROL_SPACES, ORACLE_SPACES
-from lerobot_obsbench.stats import wilson_interval
+from lerobot_obsbench.stats import seeds_and_episodes_interval, wilson_interval
 
 # Config fields that, when they differ between runs of one method, become part of its column label.
 LABEL_FIELDS = ("preset", "lr", "steps", "epochs", "image_size", "policy_overrides")
@@ -41,16 +42,34 @@ LABEL_FIELDS = ("preset", "lr", "steps", "epochs", "image_size", "policy_overrid
 
 @dataclass(frozen=True)
 class Cell:
-    successes: int
-    episodes: int
+    """One method on one task: (successes, episodes) of each of its training runs (seeds)."""
+
+    runs: tuple[tuple[int, int], ...]
+
+    @property
+    def successes(self) -> int:
+        return sum(k for k, _ in self.runs)
+
+    @property
+    def episodes(self) -> int:
+        return sum(n for _, n in self.runs)
+
+    @property
+    def seeds(self) -> int:
+        return len(self.runs)
 
     @property
     def rate(self) -> float:
+        """Every run's episodes pooled (the paper's success rate)."""
         return self.successes / self.episodes
 
-    @property
+    @cached_property
     def ci95(self) -> tuple[float, float]:
-        return wilson_interval(self.successes, self.episodes)
+        """Over training seeds and episodes (two-level bootstrap) with several seeds; with one seed the Wilson
+        interval of its episodes, which cannot show training variance."""
+        if self.seeds == 1:
+            return wilson_interval(self.successes, self.episodes)
+        return seeds_and_episodes_interval(list(self.runs))
 
 
 class ReportError(ValueError):
@@ -179,24 +198,23 @@ def _short(value) -> str:
     return f"{value:g}" if isinstance(value, float) else json.dumps(value) if isinstance(value, dict) else str(value)
 
 
-def pooled_cells(
+def cells_by_task(
     records: list[dict], perturbation: str = "none", demos: int | None = None
 ) -> dict[str, dict[str, Cell]]:
-    """{task: {label: Cell}} pooling seeds; `demos` None = each task's largest demo count."""
+    """{task: {label: Cell}}, one Cell per column holding each training seed's episodes; `demos` None = each
+    task's largest demo count."""
     labels = method_labels(records)
     most = defaultdict(int)
     for r in records:
         most[r["task"]] = max(most[r["task"]], r["config"]["demos"])
-    cells: dict[str, dict[str, list[int]]] = defaultdict(lambda: defaultdict(lambda: [0, 0]))
+    runs: dict[str, dict[str, list[tuple[int, int]]]] = defaultdict(lambda: defaultdict(list))
     for r in records:
         wanted = most[r["task"]] if demos is None else demos
         evaluation = r["evaluations"].get(perturbation)
         if r["config"]["demos"] != wanted or evaluation is None:
             continue
-        cell = cells[r["task"]][labels[r["run_id"]]]
-        cell[0] += evaluation["successes"]
-        cell[1] += evaluation["episodes"]
-    return {t: {m: Cell(*c) for m, c in row.items()} for t, row in cells.items()}
+        runs[r["task"]][labels[r["run_id"]]].append((evaluation["successes"], evaluation["episodes"]))
+    return {t: {m: Cell(tuple(c)) for m, c in row.items()} for t, row in runs.items()}
 
 
 def rates(cells: dict[str, dict[str, Cell]]) -> dict[str, dict[str, float]]:
@@ -209,18 +227,35 @@ def _label_configs(records: list[dict]) -> dict[str, dict]:
     return {labels[r["run_id"]]: r["config"] for r in records}
 
 
-def beats_blind(records: list[dict], cells: dict[str, dict[str, Cell]]) -> dict[str, dict[str, bool]]:
-    """{task: {label: whether its 95% interval lies above the blind control's}} for methods that have a blind
-    control of their policy type on that task (the best-scoring one when there are several)."""
+# Marks of a seeing method whose 95% interval lies above its blind control's.
+ABOVE_ACROSS_SEEDS = "▲"  # both rest on >= 2 training seeds: the intervals cover training variance
+ABOVE_ONE_SEED = "△"  # one side rests on one training seed: its interval covers evaluation episodes only
+
+
+def beats_blind(records: list[dict], cells: dict[str, dict[str, Cell]]) -> dict[str, dict[str, dict]]:
+    """{task: {label: {"above": interval above the blind control's, "mark": ▲ / △ / "", "seeds": training seeds
+    of the method, "blind_seeds": of the control}}} for methods that have a blind control of their policy type on
+    that task (the one with the highest upper bound when there are several). ▲ needs at least two training
+    seeds on both sides; a comparison resting on one seed is at most △."""
     configs = _label_configs(records)
-    out: dict[str, dict[str, bool]] = {}
+    out: dict[str, dict[str, dict]] = {}
     for task, row in cells.items():
         for method, cell in row.items():
             if configs[method]["obs_space"] in BLIND_SPACES:
                 continue
             controls = _controls(row, configs, BLIND_SPACES, configs[method]["policy"])
-            if controls:
-                out.setdefault(task, {})[method] = cell.ci95[0] > max(c.ci95[1] for c in controls)
+            if not controls:
+                continue
+            blind = max(controls, key=lambda c: c.ci95[1])
+            above = cell.ci95[0] > blind.ci95[1]
+            across_seeds = min(cell.seeds, blind.seeds) >= 2
+            mark = (ABOVE_ACROSS_SEEDS if across_seeds else ABOVE_ONE_SEED) if above else ""
+            out.setdefault(task, {})[method] = {
+                "above": above,
+                "mark": mark,
+                "seeds": cell.seeds,
+                "blind_seeds": blind.seeds,
+            }
     return out
 
 
@@ -341,7 +376,9 @@ def agreements(records: list[dict]) -> dict[tuple[str, str, str], Agreement]:
     most = defaultdict(int)
     for r in records:
         most[r["task"]] = max(most[r["task"]], r["config"]["demos"])
-    counts: dict[tuple[str, str, str], list[int]] = defaultdict(lambda: [0, 0, 0, 0, 0])
+    # per key: each run's (successes, episodes) changed and nominal, then the episode counts pooled
+    changed_runs, nominal_runs = defaultdict(list), defaultdict(list)
+    same, identical = defaultdict(int), defaultdict(int)
     for r in records:
         nominal = r["evaluations"].get("none", {}).get("per_seed")
         if r["config"]["demos"] != most[r["task"]] or nominal is None:
@@ -351,13 +388,15 @@ def agreements(records: list[dict]) -> dict[tuple[str, str, str], Agreement]:
             if name == "none" or changed is None or changed["seeds"] != nominal["seeds"]:
                 continue
             pairs = list(zip(nominal["success"], changed["success"], nominal["length"], changed["length"], strict=True))
-            count = counts[(r["task"], labels[r["run_id"]], name)]
-            count[0] += changed["success"].count("1")
-            count[1] += nominal["success"].count("1")
-            count[2] += sum(a == b for a, b, _, _ in pairs)
-            count[3] += sum(a == b and la == lb for a, b, la, lb in pairs)
-            count[4] += len(pairs)
-    return {key: Agreement(Cell(c[0], c[4]), Cell(c[1], c[4]), c[2], c[3]) for key, c in sorted(counts.items())}
+            key = (r["task"], labels[r["run_id"]], name)
+            changed_runs[key].append((changed["success"].count("1"), len(pairs)))
+            nominal_runs[key].append((nominal["success"].count("1"), len(pairs)))
+            same[key] += sum(a == b for a, b, _, _ in pairs)
+            identical[key] += sum(a == b and la == lb for a, b, la, lb in pairs)
+    return {
+        key: Agreement(Cell(tuple(changed_runs[key])), Cell(tuple(nominal_runs[key])), same[key], identical[key])
+        for key in sorted(changed_runs)
+    }
 
 
 def agreement_rows(found: dict[tuple[str, str, str], Agreement]):
@@ -384,6 +423,76 @@ def agreement_rows(found: dict[tuple[str, str, str], Agreement]):
     return header, rows
 
 
+def aggregate_section(records: list[dict], cells: dict[str, dict[str, Cell]], reference: str | None = None):
+    """Mean S.R. and IQM over training seeds and tasks with stratified bootstrap intervals, and each method's
+    probability of improvement over its blind control (same policy type) and over `reference` (a column label):
+    ((header, rows), figures {name: (caption, png)}, checks, warnings)."""
+    from lerobot_obsbench.bench import aggregates
+
+    scores, left_out = aggregates.seed_scores(cells)
+    if reference is not None and reference not in scores:
+        known = ", ".join(sorted(scores)) or "none"
+        why = f" ({left_out[reference]})" if reference in left_out else ""
+        raise ReportError(f"--reference {reference!r} is not a column with scores on every task{why}; columns: {known}")
+    estimates = aggregates.aggregate_estimates(scores)
+    configs = _label_configs(records)
+    over_blind, over_reference = {}, {}  # label -> (other label, P(improvement) estimate)
+    for label in sorted(scores):
+        config = configs[label]
+        if config["obs_space"] not in BLIND_SPACES:
+            blinds = [
+                m
+                for m in scores
+                if configs[m]["obs_space"] in BLIND_SPACES and configs[m]["policy"] == config["policy"]
+            ]
+            if blinds:
+                blind = max(blinds, key=lambda m: estimates[m]["mean_sr"][0])
+                over_blind[label] = (blind, aggregates.improvement_estimate(scores[label], scores[blind]))
+        if reference is not None and label != reference:
+            over_reference[label] = (reference, aggregates.improvement_estimate(scores[label], scores[reference]))
+    pairs = {(x, y): e for found in (over_blind, over_reference) for x, (y, e) in found.items()}
+    header = ["method", "training seeds", "Mean S.R. [95% CI]", "IQM [95% CI]", "P(improvement over blind) [95% CI]"]
+    if reference is not None:
+        header.append(f"P(improvement over {reference}) [95% CI]")
+    rows = []
+    for label in sorted(scores):
+        e = estimates[label]
+        cells_text = [str(e["seeds"]), aggregates.interval_text(e["mean_sr"]), aggregates.interval_text(e["iqm"])]
+        for found in (over_blind, over_reference) if reference is not None else (over_blind,):
+            cells_text.append(aggregates.interval_text(found[label][1]) if label in found else "—")
+        rows.append((label, [(c, None) for c in cells_text]))
+    figures = {}
+    if estimates:
+        figures["aggregates.png"] = (
+            "Mean S.R. and IQM over training seeds and tasks",
+            aggregates.interval_chart(estimates),
+        )
+    if pairs:
+        figures["probability_of_improvement.png"] = (
+            "Probability of improvement (training seeds)",
+            aggregates.improvement_chart(pairs),
+        )
+    checks = {
+        "aggregates": estimates,
+        "probability_of_improvement": {f"{x} > {y}": list(v) for (x, y), v in pairs.items()},
+    }
+    warnings = [f"{label} is left out of the aggregates: {why}" for label, why in left_out.items()]
+    return (header, rows), figures, checks, warnings
+
+
+def seed_warnings(cells: dict[str, dict[str, Cell]]) -> list[str]:
+    """One line naming the columns that rest on one training seed (their intervals cover episodes only)."""
+    one_seed = sorted({m for row in cells.values() for m, c in row.items() if c.seeds == 1})
+    if not one_seed:
+        return []
+    return [
+        f"One training seed behind {', '.join(one_seed)}: their intervals cover evaluation episodes only, not "
+        "training variance (which moves a seeing policy's success rate by more than its episode interval on "
+        "another machine or seed), so a comparison with them is marked △, never ▲. Train at least 3 seeds "
+        "(the grid's `seeds`) to measure it."
+    ]
+
+
 # ---- rendering -------------------------------------------------------------------------------------------
 
 
@@ -407,12 +516,12 @@ def _summary_marks(summary: dict[str, dict], key: str, lower_is_better: bool) ->
 def table_rows(
     table: dict[str, dict[str, float]],
     cells: dict[str, dict[str, Cell]] | None = None,
-    blind: dict[str, dict[str, bool]] | None = None,
+    blind: dict[str, dict[str, dict]] | None = None,
     methods: list[str] | None = None,
 ):
     """(header, rows) where each cell is (text, mark); the last two rows are Mean S.R. and Mean Rank. `blind`
-    marks with ▲ the cells whose interval lies above the blind control's. Columns: `methods`, else in the order
-    the table names them (a published table keeps its own column order)."""
+    (`beats_blind`) marks the cells whose interval lies above the blind control's with ▲ or △. Columns:
+    `methods`, else in the order the table names them (a published table keeps its own column order)."""
     methods = methods or list(dict.fromkeys(m for row in table.values() for m in row))
     summary = summarize(table)
     n_tasks = len(table)
@@ -426,10 +535,13 @@ def table_rows(
                 continue
             text = f"{row[m]:.2f}"
             if cells is not None:
-                lo, hi = cells[task][m].ci95
-                text += f" [{lo:.2f}, {hi:.2f}] ({cells[task][m].successes}/{cells[task][m].episodes})"
-            if blind and blind.get(task, {}).get(m):
-                text += " ▲"
+                cell = cells[task][m]
+                lo, hi = cell.ci95
+                seeds = f", {cell.seeds} seeds" if cell.seeds > 1 else ""
+                text += f" [{lo:.2f}, {hi:.2f}] ({cell.successes}/{cell.episodes}{seeds})"
+            mark = (blind or {}).get(task, {}).get(m, {}).get("mark")
+            if mark:
+                text += f" {mark}"
             out.append((text, marks.get(m)))
         rows.append((task, out))
     for key, title, lower in (("mean_sr", "Mean S.R.", False), ("mean_rank", "Mean Rank", True)):
@@ -544,9 +656,9 @@ def perturbation_series(records: list[dict]) -> dict[str, dict[str, list[tuple[f
     curves: dict[str, dict[str, list[tuple[float, float]]]] = defaultdict(lambda: defaultdict(list))
     for name in names:
         pert = parse_perturbation(name)
-        for method, value in _mean_over_tasks(pooled_cells(records, name)).items():
+        for method, value in _mean_over_tasks(cells_by_task(records, name)).items():
             curves[pert.kind][method].append((pert.scalar, value))
-    nominal_rates = _mean_over_tasks(pooled_cells(records, "none")) if curves else {}
+    nominal_rates = _mean_over_tasks(cells_by_task(records, "none")) if curves else {}
     for kind, by_method in curves.items():
         if NOMINAL_VALUE[kind] is not None:
             for method, value in nominal_rates.items():
@@ -559,7 +671,7 @@ def demo_series(records: list[dict]) -> dict[str, list[tuple[float, float]]]:
     counts = sorted({r["config"]["demos"] for r in records})
     series = defaultdict(list)
     for n in counts:
-        for method, value in _mean_over_tasks(pooled_cells(records, "none", demos=n)).items():
+        for method, value in _mean_over_tasks(cells_by_task(records, "none", demos=n)).items():
             series[method].append((n, value))
     return series
 
@@ -573,29 +685,51 @@ def build_report(
     published: dict[str, dict[str, float]] | None = None,
     published_name: str = "published",
     checkpoint: str = "best",
+    reference: str | None = None,
 ) -> dict:
-    """Everything the report shows: tables (header, rows), PNG figures and the JSON summary. `results`: the
-    results store's records; `checkpoint`: which checkpoint's test evaluations the tables show (`run_views`)."""
+    """Everything the report shows: tables (header, rows), PNG figures, warnings and the JSON summary. `results`:
+    the results store's records; `checkpoint`: which checkpoint's test evaluations the tables show
+    (`run_views`); `reference`: a column every method's probability of improvement is also computed against."""
     records = run_views(results, checkpoint)
     if not records and not published:
         raise ReportError("nothing to report: no evaluated runs in the results and no --table")
-    sections, figures, summary, checks = [], {}, {}, {}
+    sections, figures, summary, checks, warnings = [], {}, {}, {}, []
+    if reference is not None and not records:
+        raise ReportError("--reference names a column of the results; there are no evaluated runs")
     if records:
         shown = sorted({r["shown"] for r in records})
         checks["checkpoint"] = {s: sum(r["shown"] == s for r in records) for s in shown}
-        cells = pooled_cells(records)
+        cells = cells_by_task(records)
         table = rates(cells)
         blind = beats_blind(records, cells)
         sections.append(
             (
-                "Success rate per task (held-out test seeds, seeds pooled, 95% Wilson interval, successes/episodes; "
-                "▲ = interval above the blind control's). Checkpoint shown: "
+                "Success rate per task (held-out test seeds, training seeds' episodes pooled; 95% interval over "
+                "training seeds and episodes, or over episodes only (Wilson) for one seed; successes/episodes; "
+                "▲ / △ = interval above the blind control's, across seeds / on one seed). Checkpoint shown: "
                 + ", ".join(f"{CHECKPOINT_TEXT[s]} ({n} runs)" for s, n in checks["checkpoint"].items()),
                 table_rows(table, cells, blind, methods=sorted({m for row in table.values() for m in row})),
             )
         )
         summary["results"] = summarize(table)
         checks["beats_blind"] = blind
+        warnings += seed_warnings(cells)
+        aggregate_table, aggregate_figures, aggregate_checks, aggregate_warnings = aggregate_section(
+            records, cells, reference
+        )
+        if aggregate_table[1]:
+            sections.append(
+                (
+                    "Across tasks and training seeds (rliable; each run's score is its success rate; 95% "
+                    "stratified bootstrap over training seeds, so episode noise is in the per-task intervals "
+                    "above, not here; IQM = interquartile mean of the runs' scores; P(improvement) = chance that "
+                    "a training seed of the method beats one of the other, averaged over tasks)",
+                    aggregate_table,
+                )
+            )
+        figures.update(aggregate_figures)
+        checks.update(aggregate_checks)
+        warnings += aggregate_warnings
         brackets = control_brackets(records, cells)
         if brackets:
             sections.append(
@@ -653,7 +787,7 @@ def build_report(
                     t: {**{f"{m} ({published_name})": v for m, v in published[t].items()}, **table[t]} for t in shared
                 }
                 sections.append((f"Side by side on the shared tasks ({', '.join(shared)})", table_rows(combined)))
-    return {"sections": sections, "figures": figures, "summary": summary, "checks": checks}
+    return {"sections": sections, "figures": figures, "summary": summary, "checks": checks, "warnings": warnings}
 
 
 def write_report(report: dict, out: Path, title: str = "OBSBench report", notes: str = "") -> dict[str, Path]:
@@ -663,13 +797,18 @@ def write_report(report: dict, out: Path, title: str = "OBSBench report", notes:
         (out / name).write_bytes(png)
     md = [f"# {title}", "", notes, ""] if notes else [f"# {title}", ""]
     body = [f"<h1>{html.escape(title)}</h1>"] + ([f"<p>{html.escape(notes)}</p>"] if notes else [])
+    for warning in report.get("warnings", []):
+        md += [f"> **Note:** {warning}", ""]
+        body.append(f"<p><b>Note:</b> {html.escape(warning)}</p>")
     for heading, (header, rows) in report["sections"]:
         md += [f"## {heading}", "", markdown_table(header, rows), ""]
         body += [f"<h2>{html.escape(heading)}</h2>", html_table(header, rows)]
     legend = (
         "Best per row in bold, second underlined. Mean Rank: competition ranking per task (ties share the "
         "best rank), averaged over tasks; * = the method lacks some tasks (means over its tasks). ▲: the "
-        "method's 95% interval lies entirely above its blind control's (obs_space none, same policy type)."
+        "method's 95% interval lies entirely above its blind control's (obs_space none, same policy type), both "
+        "over at least two training seeds; △: the same, but one of them rests on one training seed, so the "
+        "intervals cover evaluation episodes only."
     )
     md += [legend, ""]
     body.append(f"<p>{html.escape(legend)}</p>")

@@ -184,6 +184,12 @@ def print_plan(grid: Grid, work: Work, out: Path, device: str, echo=print) -> No
         f"  rough cost with one worker: {totals['cpu'] / 3600:.1f} h on a 2-core CPU, {totals['cuda'] / 3600:.1f} h "
         f"on one H200 GPU (planning on {device}; recorded demonstrations not counted)"
     )
+    if len(set(grid.seeds)) < 2:
+        echo(
+            f"  note: one training seed ({grid.seeds[0]}): every comparison rests on it, so its intervals cover "
+            "evaluation episodes only and the report marks a method above blind with △, never ▲; list at least "
+            "3 `seeds` to measure training variance"
+        )
 
 
 class Driver:

@@ -1,0 +1,156 @@
+"""Across-task aggregates over training seeds, as Agarwal et al. (NeurIPS 2021, "Deep RL at the Edge of the
+Statistical Precipice") recommend and their `rliable` library computes: Mean S.R. and the interquartile mean
+(IQM) with stratified bootstrap intervals, and the probability that a method improves on another (per task, the
+chance that a random training seed of one beats a random seed of the other; averaged over tasks), with its
+interval. A run's score is its success rate on its test episodes; runs are training seeds.
+
+rliable's bootstrap resamples runs within each task, so a method enters only with the same number of training
+seeds on every task of the table (its score matrix is seeds x tasks); one with one seed per task gets point
+estimates and no interval (nothing to resample). Every bootstrap draws from its own fixed seed, so a report
+is reproducible and one method's interval does not depend on which others are in it.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+BOOTSTRAP_REPS = 2000
+BOOTSTRAP_SEED = 0
+AGGREGATE_NAMES = ("Mean S.R.", "IQM")
+
+
+def seed_scores(cells: dict) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+    """({label: (training seeds x tasks) success rates}, {label: why it is left out}) from report cells
+    ({task: {label: Cell}}), tasks in the table's order."""
+    tasks = list(cells)
+    labels = list(dict.fromkeys(m for row in cells.values() for m in row))
+    scores, left_out = {}, {}
+    for label in labels:
+        missing = [t for t in tasks if label not in cells[t]]
+        if missing:
+            left_out[label] = f"not evaluated on {', '.join(missing)}"
+            continue
+        counts = {cells[t][label].seeds for t in tasks}
+        if len(counts) > 1:
+            left_out[label] = f"different numbers of training seeds across tasks ({sorted(counts)})"
+            continue
+        scores[label] = np.array([[k / n for k, n in cells[t][label].runs] for t in tasks]).T
+    return scores, left_out
+
+
+def _interval(data, func) -> tuple[float, np.ndarray]:
+    """rliable's stratified bootstrap (percentile, 95%) of `func` over `data` (one matrix, or a pair)."""
+    from rliable import library as rly
+
+    with warnings.catch_warnings():
+        # arch deprecates the RandomState rliable hands it; the draws stay the same
+        warnings.simplefilter("ignore", FutureWarning)
+        point, interval = rly.get_interval_estimates(
+            {"x": data}, func, reps=BOOTSTRAP_REPS, random_state=np.random.RandomState(BOOTSTRAP_SEED)
+        )
+    return point["x"], interval["x"]
+
+
+def aggregate_estimates(scores: dict[str, np.ndarray]) -> dict[str, dict]:
+    """{label: {"seeds", "mean_sr": (point, low, high), "iqm": (point, low, high)}}; low/high None with one seed."""
+    from rliable import metrics
+
+    def both(matrix):
+        return np.array([metrics.aggregate_mean(matrix), metrics.aggregate_iqm(matrix)])
+
+    out = {}
+    for label, matrix in scores.items():
+        point, interval = _interval(matrix, both)
+        one_seed = matrix.shape[0] == 1
+        out[label] = {
+            "seeds": int(matrix.shape[0]),
+            **{
+                key: (
+                    float(point[i]),
+                    None if one_seed else float(interval[0][i]),
+                    None if one_seed else float(interval[1][i]),
+                )
+                for i, key in enumerate(("mean_sr", "iqm"))
+            },
+        }
+    return out
+
+
+def improvement_estimate(x: np.ndarray, y: np.ndarray) -> tuple[float, float | None, float | None]:
+    """P(x > y) of two score matrices over the same tasks, with its 95% interval (None when both have one
+    seed: nothing to resample)."""
+    from rliable import metrics
+
+    point, interval = _interval([x, y], metrics.probability_of_improvement)
+    if x.shape[0] == 1 and y.shape[0] == 1:
+        return float(point), None, None
+    return float(point), float(interval[0]), float(interval[1])
+
+
+def interval_text(estimate: tuple[float, float | None, float | None]) -> str:
+    point, low, high = estimate
+    return f"{point:.2f}" if low is None else f"{point:.2f} [{low:.2f}, {high:.2f}]"
+
+
+def _bounds(estimate: tuple[float, float | None, float | None]) -> tuple[float, float]:
+    """(low, high), the point itself where there is no interval (one seed)."""
+    point, low, high = estimate
+    return (point, point) if low is None else (low, high)
+
+
+def interval_chart(estimates: dict[str, dict]) -> bytes:
+    """rliable's interval plot of Mean S.R. and IQM per method (one-seed methods: the point only)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from rliable import plot_utils
+
+    labels = sorted(estimates)
+    points = {m: np.array([estimates[m]["mean_sr"][0], estimates[m]["iqm"][0]]) for m in labels}
+    intervals = {m: np.array([_bounds(estimates[m]["mean_sr"]), _bounds(estimates[m]["iqm"])]).T for m in labels}
+    fig, _ = plot_utils.plot_interval_estimates(
+        points,
+        intervals,
+        metric_names=list(AGGREGATE_NAMES),
+        algorithms=labels,
+        xlabel="success rate (95% CI over training seeds)",
+        xlabel_y_coordinate=-0.35,
+        subfigure_width=4.0,
+    )
+    return _png(fig, plt)
+
+
+def improvement_chart(estimates: dict[tuple[str, str], tuple[float, float | None, float | None]]) -> bytes:
+    """rliable's probability-of-improvement plot: one bar per (method, reference) pair."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from rliable import plot_utils
+
+    separator = "\t"  # split back into the two labels by rliable; labels never hold a tab
+    points = {f"{x}{separator}{y}": e[0] for (x, y), e in estimates.items()}
+    intervals = {f"{x}{separator}{y}": np.array(_bounds(e)) for (x, y), e in estimates.items()}
+    fig, ax = plt.subplots(figsize=(4.5, 0.5 + 0.45 * len(points)))
+    plot_utils.plot_probability_of_improvement(
+        points,
+        intervals,
+        pair_separator=separator,
+        ax=ax,
+        xticks=[0.0, 0.25, 0.5, 0.75, 1.0],
+        ticklabelsize="small",
+        labelsize="small",
+    )
+    return _png(fig, plt)
+
+
+def _png(fig, plt) -> bytes:
+    import io
+
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return buffer.getvalue()
