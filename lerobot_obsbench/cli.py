@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 from lerobot_obsbench import __version__
-from lerobot_obsbench.schema import OBS_SPACES, POLICY_TYPES, QUATERNION_MODES, SchemaError
+from lerobot_obsbench.schema import MIN_IMAGE_SIZE, OBS_SPACES, POLICY_TYPES, QUATERNION_MODES, SchemaError
 
 
 def cmd_encoders(args: argparse.Namespace) -> int:
@@ -59,7 +59,13 @@ def cmd_demos(args: argparse.Namespace) -> int:
     from lerobot_obsbench.datasets.recording import record_demos
 
     info = record_demos(
-        args.task, args.episodes, args.out, image_size=args.image_size, cameras=args.cameras, seed_start=args.seed_start
+        args.task,
+        args.episodes,
+        args.out,
+        image_size=args.image_size,
+        cameras=args.cameras,
+        seed_start=args.seed_start,
+        overwrite=args.overwrite,
     )
     print(
         f"{args.out}: {len(info['seeds'])} episodes of {args.task}; expert success rate "
@@ -147,6 +153,7 @@ def cmd_import_rlbench(args: argparse.Namespace) -> int:
         text_encoder=_text_encoder(args.clip_weights),
         max_episodes=args.max_episodes,
         quaternion=args.quaternion,
+        overwrite=args.overwrite,
     )
     skipped = f"; {len(info['skipped'])} unreadable episodes skipped (listed in obsbench_import.json)"
     print(
@@ -158,12 +165,15 @@ def cmd_import_rlbench(args: argparse.Namespace) -> int:
 
 def cmd_eval_rlbench(args: argparse.Namespace) -> int:
     from lerobot_obsbench.envs.evaluate import write_result
+    from lerobot_obsbench.outputs import check_output_file
     from lerobot_obsbench.policies.loading import load_policy
     from lerobot_obsbench.rlbench.evaluate import CameraView, CheckpointPolicy, evaluate_rlbench, require_rlbench
     from lerobot_obsbench.rlbench.tasks import rlbench_task
 
     task = rlbench_task(args.task)
     view = CameraView(*args.camera_view) if args.camera_view else None
+    if args.out is not None:
+        check_output_file(args.out, "--out", args.overwrite)  # before the episodes it would hold
     require_rlbench()  # before anything loads
     policy, pre, post = load_policy(args.policy_path, args.device)
     runner = CheckpointPolicy(
@@ -179,8 +189,11 @@ def cmd_eval_rlbench(args: argparse.Namespace) -> int:
 def cmd_eval(args: argparse.Namespace) -> int:
     from lerobot_obsbench.envs.evaluate import evaluate, write_result
     from lerobot_obsbench.envs.perturbations import parse_perturbation
+    from lerobot_obsbench.outputs import check_output_file
 
     parse_perturbation(args.perturbation)  # a typo fails before the policy and the simulator load
+    if args.out is not None:
+        check_output_file(args.out, "--out", args.overwrite)  # before the episodes it would hold
 
     result = evaluate(
         args.policy_path,
@@ -377,13 +390,22 @@ def cmd_calibrate_cameras(args: argparse.Namespace) -> int:
     import numpy as np
     from scipy.spatial.transform import Rotation
 
+    from lerobot_obsbench.outputs import OutputPathError, check_output_file
     from lerobot_obsbench.robots.extrinsics import BoardSpec, calibrate, save_extrinsics
     from lerobot_obsbench.robots.realsense.config_realsense_rgbd import RealSenseRGBDCameraConfig
     from lerobot_obsbench.robots.realsense.realsense_rgbd import RealSenseRGBDCamera
 
     spec = BoardSpec(*args.squares, args.square_length, args.marker_length, args.dictionary)
     if args.print_board:
-        cv2.imwrite(str(args.print_board), spec.image())
+        check_output_file(args.print_board, "--print-board", overwrite=True)
+        unwritable = OutputPathError(
+            f"--print-board {args.print_board}: OpenCV could not write it; give an image file name ending in .png"
+        )
+        if not cv2.haveImageWriter(str(args.print_board)):
+            raise unwritable
+        args.print_board.parent.mkdir(parents=True, exist_ok=True)
+        if not cv2.imwrite(str(args.print_board), spec.image()):  # OpenCV returns False instead of raising
+            raise unwritable
         print(f"{args.print_board}: print at 100 % and check that a square measures {args.square_length * 1000:g} mm")
         return 0
     if not args.serial and not args.playback:
@@ -481,6 +503,19 @@ def positive_int(text: str) -> int:
     return value
 
 
+def frame_size(text: str) -> int:
+    """argparse type: a camera frame size in pixels, at least the smallest every stage handles."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of pixels, got {text!r}") from None
+    if value < MIN_IMAGE_SIZE:
+        raise argparse.ArgumentTypeError(
+            f"must be >= {MIN_IMAGE_SIZE} pixels (LeRobot's video encoder fails on smaller frames), got {value}"
+        )
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     from lerobot_obsbench.bench.engines import ENGINES
     from lerobot_obsbench.bench.grid import preset_grids
@@ -538,8 +573,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--task", required=True)
     p.add_argument("--episodes", type=positive_int, required=True)
-    p.add_argument("--out", type=Path, required=True)
-    p.add_argument("--image-size", type=int, default=128)
+    p.add_argument("--out", type=Path, required=True, help="dataset folder: new, empty, or this recording's (resumed)")
+    p.add_argument("--overwrite", action="store_true", help="delete what --out holds first")
+    p.add_argument("--image-size", type=frame_size, default=128)
     p.add_argument("--cameras", nargs="+", default=["base_camera"])
     p.add_argument(
         "--seed-start",
@@ -556,7 +592,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--h5", type=Path, required=True)
     p.add_argument("--out", type=Path, required=True)
-    p.add_argument("--image-size", type=int, default=128)
+    p.add_argument("--image-size", type=frame_size, default=128)
     p.add_argument("--cameras", nargs="+", default=["base_camera"])
     p.add_argument("--max-episodes", type=positive_int, default=None)
     p.add_argument("--all", action="store_true", help="also import unsuccessful episodes")
@@ -568,7 +604,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="convert PerAct-format RLBench demonstrations (one task folder of a split) into the schema",
     )
     p.add_argument("--data", type=Path, required=True, help="the task's folder, e.g. data/rlbench/train/open_drawer")
-    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--out", type=Path, required=True, help="dataset folder: new, empty, or this import's (resumed)")
+    p.add_argument("--overwrite", action="store_true", help="delete what --out holds first")
     p.add_argument("--task", default=None, help="RLBench task name (default: the folder's name)")
     p.add_argument("--cameras", nargs="+", default=["front"], help="front (the paper), left_shoulder, wrist, ...")
     p.add_argument("--max-episodes", type=positive_int, default=None)
@@ -595,7 +632,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--clip-weights", default=None, help="the CLIP checkpoint the dataset was imported with")
     p.add_argument("--quaternion", default="pcm_compat", choices=QUATERNION_MODES)
     p.add_argument("--policy.device", dest="device", default="cpu")
-    p.add_argument("--out", type=Path, default=None, help="write the JSON result here")
+    p.add_argument("--out", type=Path, default=None, help="write the JSON result here (a file, checked first)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     p.set_defaults(func=cmd_eval_rlbench)
 
     p = sub.add_parser("eval", help="success rate of a checkpoint on the task's fixed held-out seeds 0..N-1")
@@ -605,7 +643,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--env.image_size",
         dest="image_size",
-        type=int,
+        type=frame_size,
         default=None,
         help="default: the resolution the policy was trained on",
     )
@@ -620,7 +658,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--policy.device", dest="device", default="cpu")
     p.add_argument("--videos", type=Path, default=None, help="write one mp4 per episode here")
-    p.add_argument("--out", type=Path, default=None, help="write the JSON result here")
+    p.add_argument("--out", type=Path, default=None, help="write the JSON result here (a file, checked first)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     p.set_defaults(func=cmd_eval)
 
     p = sub.add_parser("doctor", help="check simulator rendering and which tasks can run on this machine")
@@ -822,6 +861,7 @@ def main(argv: list[str] | None = None) -> int:
     from lerobot_obsbench.envs.perturbations import PerturbationError
     from lerobot_obsbench.envs.task import TaskError
     from lerobot_obsbench.locks import OutputLockedError
+    from lerobot_obsbench.outputs import OutputPathError
     from lerobot_obsbench.rlbench.evaluate import RLBenchUnavailable
     from lerobot_obsbench.rlbench.format import RLBenchFormatError
     from lerobot_obsbench.rlbench.tasks import RLBenchTaskError
@@ -836,6 +876,7 @@ def main(argv: list[str] | None = None) -> int:
         SchemaError,
         ResultsFormatError,
         OutputLockedError,
+        OutputPathError,
         PushError,
         PerturbationError,
         RLBenchUnavailable,

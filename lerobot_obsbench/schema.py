@@ -77,6 +77,9 @@ EE_POSE_SIZE = 7  # xyz + quaternion (w, x, y, z)
 # sensors, so only the oracle reads it.
 PRIVILEGED_STATE_KEY = OBS_PREFIX + "privileged_state"
 POSE_SIZE = 7
+# The smallest camera frame (pixels, square) every stage handles: LeRobot's AV1 video encoder (SVT-AV1) fails on
+# smaller frames, after the simulation has run; so demos, grids and envs refuse it up front.
+MIN_IMAGE_SIZE = 32
 
 # Which per-camera sensors each observation space reads.
 SPACE_SENSORS: dict[str, tuple[str, ...]] = {

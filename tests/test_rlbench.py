@@ -253,7 +253,7 @@ def test_import_resumes_and_refuses_another_source(imported, tiny_clip, capsys):
     root = imported["root"]
     again = import_rlbench(root / "train" / "open_drawer", imported["open_drawer"]["dir"], text_encoder=tiny_clip)
     assert again == imported["open_drawer"]["info"] and "already imported" in capsys.readouterr().out
-    with pytest.raises(FileExistsError, match="already holds an import"):
+    with pytest.raises(FileExistsError, match="already holds a dataset made with other settings \\(source"):
         import_rlbench(root / "train" / "close_jar", imported["open_drawer"]["dir"], task="close_jar")
 
 

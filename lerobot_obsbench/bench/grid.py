@@ -35,7 +35,7 @@ from lerobot_obsbench.envs.maniskill import DEFAULT_CONTROL_MODE
 from lerobot_obsbench.envs.perturbations import parse_perturbation
 from lerobot_obsbench.envs.task import TASKS, task_spec
 from lerobot_obsbench.presets import PRESETS, preset_encoder, preset_overrides
-from lerobot_obsbench.schema import CONTROL_SPACES, OBS_SPACES, POINT_SPACES, POLICY_TYPES
+from lerobot_obsbench.schema import CONTROL_SPACES, MIN_IMAGE_SIZE, OBS_SPACES, POINT_SPACES, POLICY_TYPES
 
 BUDGET_UNITS = {
     "steps": "optimizer steps",
@@ -328,7 +328,7 @@ NUMERIC_FIELDS = {
     "batch_size": (True, 1, True),
     "checkpoints": (True, 1, True),
     "validation_episodes": (True, 0, True),
-    "image_size": (True, 16, True),
+    "image_size": (True, MIN_IMAGE_SIZE, True),
     "eval_episodes": (True, 1, True),
     "episode_length": (True, 1, True),
 }
@@ -367,6 +367,15 @@ def _check_values(values: dict, name: str) -> None:
     for key in ("name", "description", "preset", "control_mode", "checkpoints_from"):
         if key in values and values[key] is not None and not isinstance(values[key], str):
             raise GridError(f"{name}: {key} is text; got {values[key]!r}")
+    for key in ("tasks", "obs_spaces", "policies", *NUMERIC_FIELDS, *TEXT_LIST_FIELDS):
+        value = values.get(key)
+        if isinstance(value, list):
+            repeated = sorted({json.dumps(v) for v in value if value.count(v) > 1})
+            if repeated:
+                raise GridError(
+                    f"{name}: {key} lists {', '.join(repeated)} more than once; each value is one point of the "
+                    "grid (a repeated seed would train the same run twice): list it once"
+                )
     if not isinstance(values.get("policy_overrides", {}), dict):
         raise GridError(f"{name}: policy_overrides is a mapping of --policy.* fields to values")
 
@@ -471,10 +480,30 @@ def resolve_grid_path(path_or_preset: str | Path):
     raise GridError(f"no grid file {str(path_or_preset)!r}; give a YAML path or a preset: {', '.join(preset_grids())}")
 
 
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """YAML's safe loader, refusing a mapping that names a key twice (plain YAML keeps the last one silently)."""
+
+
+def _unique_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False) -> dict:
+    lines: dict = {}
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=True)
+        line = key_node.start_mark.line + 1
+        if key in lines:
+            raise yaml.constructor.ConstructorError(
+                None, None, f"{key!r} is given twice (lines {lines[key]} and {line}): keep one", key_node.start_mark
+            )
+        lines[key] = line
+    return loader.construct_mapping(node, deep=deep)
+
+
+_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _unique_mapping)
+
+
 def load_grid(path_or_preset: str | Path) -> Grid:
     path = resolve_grid_path(path_or_preset)
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.load(path.read_text(), Loader=_UniqueKeyLoader)
     except yaml.YAMLError as err:
         raise GridError(f"{path}: not valid YAML: {err}") from None
     return parse_grid(data, name=path.name.removesuffix(".yaml"))

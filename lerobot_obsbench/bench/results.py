@@ -16,6 +16,7 @@ evaluations) are refused with the command that converts them (`obsbench convert-
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import sys
@@ -52,18 +53,44 @@ def read_results(path: Path, warn=None) -> list[dict]:
                 "its work will be redone"
             )
             continue
-        if isinstance(record, dict) and "kind" not in record and "evaluations" in record:
+        if not isinstance(record, dict):
+            warn(f"{path}:{number}: results line is {json.dumps(record)[:40]}, not a record (a JSON object): skipped")
+            continue
+        if "kind" not in record and "evaluations" in record:
             raise ResultsFormatError(
                 f"{path} was written by lerobot-obsbench 0.1 (one record per run with its evaluations). Convert it "
                 f"once, keeping every checkpoint and evaluation: obsbench convert-results {path}"
             )
-        kind = record.get("kind") if isinstance(record, dict) else None
-        missing = [k for k in REQUIRED.get(kind, ("kind",)) if k not in record]
+        missing = [k for k in REQUIRED.get(record.get("kind"), ("kind",)) if k not in record]
         if missing:
             warn(f"{path}:{number}: results line without {missing} skipped")
             continue
+        problem = impossible_counts(record) if record["kind"] == "eval" else None
+        if problem:
+            warn(f"{path}:{number}: results line skipped: {problem}; its evaluation will be redone")
+            continue
         records.append(record)
     return records
+
+
+def impossible_counts(record: dict) -> str | None:
+    """What is impossible in an eval record's counts (None: nothing): episodes a whole number >= 1, successes a
+    whole number in 0..episodes, success_rate (where given) a finite number in [0, 1]."""
+
+    def whole(value) -> bool:
+        return isinstance(value, int) and not isinstance(value, bool)
+
+    episodes, successes = record["episodes"], record["successes"]
+    if not whole(episodes) or episodes < 1:
+        return f"episodes = {episodes!r} is not a whole number >= 1"
+    if not whole(successes) or not 0 <= successes <= episodes:
+        return f"successes = {successes!r} is not a whole number in 0..{episodes}"
+    rate = record.get("success_rate")
+    if rate is not None and not (
+        isinstance(rate, (int, float)) and not isinstance(rate, bool) and math.isfinite(rate) and 0 <= rate <= 1
+    ):
+        return f"success_rate = {rate!r} is not a finite number in [0, 1]"
+    return None
 
 
 def append_result(path: Path, record: dict) -> None:
@@ -132,9 +159,10 @@ def upgrade_v1(record: dict) -> list[dict]:
 
 
 def convert_v1(path: Path) -> Path:
-    """Rewrite a 0.1 results file in the current format (the original is kept as `<name>.v1`)."""
+    """Rewrite a 0.1 results file in the current format; the original is kept as `<name>.v1` (`.v1.2`, ... when
+    an earlier backup is there: a backup is never replaced). A file with no 0.1 record is refused, unchanged."""
     path = Path(path)
-    converted = []
+    converted, old = [], 0
     for number, line in enumerate(path.read_text().splitlines(), start=1):
         if not line.strip():
             continue
@@ -143,8 +171,21 @@ def convert_v1(path: Path) -> Path:
         except json.JSONDecodeError:
             print(f"{path}:{number}: corrupted line dropped", file=sys.stderr)
             continue
-        converted += upgrade_v1(record) if "kind" not in record else [record]
+        if not isinstance(record, dict):
+            print(f"{path}:{number}: line that is not a record (a JSON object) dropped", file=sys.stderr)
+            continue
+        if "kind" in record:
+            converted.append(record)
+        else:
+            converted += upgrade_v1(record)
+            old += 1
+    if not old:
+        raise ResultsFormatError(f"{path} holds no lerobot-obsbench 0.1 records: nothing to convert (file unchanged)")
     backup = path.with_name(path.name + ".v1")
+    copy = 1
+    while backup.exists():  # an earlier conversion's backup is the only copy of its original
+        copy += 1
+        backup = path.with_name(f"{path.name}.v1.{copy}")
     shutil.copy2(path, backup)
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in converted))

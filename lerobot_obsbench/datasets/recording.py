@@ -20,13 +20,14 @@ from tqdm import tqdm
 
 from lerobot_obsbench.envs.maniskill import CONTROL_FPS
 from lerobot_obsbench.envs.task import DEMO_SEED_START, task_spec
-from lerobot_obsbench.locks import exclusive_output
-from lerobot_obsbench.schema import ACTION_KEY, DEPTH_PREFIX, IMAGE_PREFIX, env_observation_to_frame
+from lerobot_obsbench.locks import LOCK_NAME, exclusive_output
+from lerobot_obsbench.schema import ACTION_KEY, DEPTH_PREFIX, IMAGE_PREFIX, MIN_IMAGE_SIZE, env_observation_to_frame
 
 STAGING = ".episodes"
 ATTEMPTS_LOG = "attempts.jsonl"
 TMP_SUFFIX = ".tmp.npz"  # an episode file being written; never read as an episode
 SIDECAR = "obsbench_demos.json"
+SETTINGS = "settings.json"  # in STAGING: the settings of an interrupted recording
 DATASET_ENTRIES = ("meta", "data", "videos", "images", ".assembling")
 
 
@@ -137,9 +138,12 @@ def record_demos(
     max_attempts: int | None = None,
     repo_id: str | None = None,
     keep_staging: bool = False,
+    overwrite: bool = False,
 ) -> dict:
     """Record `episodes` successful expert demonstrations of `task` into `out` (resumable; one recorder per
-    `out`: a second one is refused with `OutputLockedError`)."""
+    `out`: a second one is refused with `OutputLockedError`). What `out` already holds is kept: the same
+    recording (finished: returned; interrupted: resumed), anything else refused before the simulator starts,
+    unless `overwrite` (then it is deleted first)."""
     spec = task_spec(task)  # unknown task -> TaskError listing the valid ones
     if spec.expert is None:
         spec.make_expert(None)  # raises the explanatory NotImplementedError
@@ -147,12 +151,64 @@ def record_demos(
         raise ValueError(f"demonstration seeds must start at >= {DEMO_SEED_START} (below are evaluation seeds)")
     if episodes < 1:
         raise ValueError(f"--episodes must be >= 1; got {episodes}")
-    if image_size < 8:
-        raise ValueError(f"--image-size must be >= 8 pixels; got {image_size}")
+    if image_size < MIN_IMAGE_SIZE:
+        raise ValueError(
+            f"--image-size must be >= {MIN_IMAGE_SIZE} pixels (LeRobot's video encoder fails below); got {image_size}"
+        )
+    settings = {"task": spec.name, "image_size": image_size, "cameras": list(cameras), "seed_start": seed_start}
     with exclusive_output(out, "obsbench demos"):
+        prepare_dataset_out(
+            Path(out),
+            settings,
+            SIDECAR,
+            lambda info: settings_differences(
+                {**info, "episodes": len(info["seeds"])}, {**settings, "episodes": episodes}
+            ),
+            overwrite,
+        )
         return _record_locked(
             spec, episodes, Path(out), image_size, cameras, seed_start, max_attempts, repo_id, keep_staging
         )
+
+
+def settings_differences(found: dict, wanted: dict) -> str:
+    """The settings of `wanted` that `found` does not share, as "name X there, Y asked" (empty: none)."""
+    return ", ".join(f"{k} {found.get(k)!r} there, {v!r} asked" for k, v in wanted.items() if found.get(k) != v)
+
+
+def prepare_dataset_out(out: Path, settings: dict, sidecar: str, finished_differences, overwrite: bool) -> None:
+    """Before a recording or import writes dataset folder `out` (locked by the caller): keep the same work —
+    finished (its `sidecar` file, compared by `finished_differences(sidecar contents)`, empty when the same) or
+    interrupted (STAGING's settings file, compared with `settings`) —, refuse anything else with what is there
+    and the choices, or with `overwrite` delete it; then record `settings` for a later resume to match."""
+    present = sorted(p.name for p in out.iterdir() if p.name != LOCK_NAME)
+    choice = "--overwrite to replace it, or another --out"
+    if present and overwrite:
+        for name in present:
+            path = out / name
+            shutil.rmtree(path) if path.is_dir() and not path.is_symlink() else path.unlink()
+    elif (out / sidecar).is_file():
+        different = finished_differences(json.loads((out / sidecar).read_text()))
+        if different:
+            raise FileExistsError(
+                f"--out {out} already holds a dataset made with other settings ({different}); {choice}"
+            )
+        return
+    elif (out / STAGING / SETTINGS).is_file():
+        different = settings_differences(json.loads((out / STAGING / SETTINGS).read_text()), settings)
+        if different:
+            raise FileExistsError(
+                f"--out {out} holds an interrupted run with other settings ({different}); rerun with its settings "
+                f"to resume it, {choice}"
+            )
+    elif present:
+        shown = ", ".join(present[:5]) + (", ..." if len(present) > 5 else "")
+        raise FileExistsError(
+            f"--out {out} is not empty ({shown}) and holds nothing this command made; give a new or empty folder, "
+            "or --overwrite to replace what is there"
+        )
+    (out / STAGING).mkdir(parents=True, exist_ok=True)
+    (out / STAGING / SETTINGS).write_text(json.dumps(settings) + "\n")
 
 
 def _record_locked(spec, episodes, out, image_size, cameras, seed_start, max_attempts, repo_id, keep_staging) -> dict:
@@ -160,15 +216,9 @@ def _record_locked(spec, episodes, out, image_size, cameras, seed_start, max_att
 
     task = spec.name
     sidecar = out / SIDECAR
-    if sidecar.is_file() and (out / "meta" / "info.json").is_file():
-        info = json.loads(sidecar.read_text())
-        if info["task"] == task and len(info["seeds"]) == episodes:
-            print(f"{out}: {episodes} {task} demonstrations already recorded")
-            return info
-        raise FileExistsError(
-            f"{out} already holds a dataset ({info['task']}, {len(info['seeds'])} episodes); "
-            "choose another --out or delete it."
-        )
+    if sidecar.is_file() and (out / "meta" / "info.json").is_file():  # the same recording (_check_existing)
+        print(f"{out}: {episodes} {task} demonstrations already recorded")
+        return json.loads(sidecar.read_text())
     staging = out / STAGING
     staging.mkdir(parents=True, exist_ok=True)
     attempted = _attempted(staging)

@@ -20,7 +20,14 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from lerobot_obsbench.datasets.recording import STAGING, TMP_SUFFIX, assemble, save_episode_file
+from lerobot_obsbench.datasets.recording import (
+    STAGING,
+    TMP_SUFFIX,
+    assemble,
+    prepare_dataset_out,
+    save_episode_file,
+    settings_differences,
+)
 from lerobot_obsbench.locks import exclusive_output
 from lerobot_obsbench.rlbench.format import (
     ACTION_SIZE,
@@ -59,24 +66,30 @@ def import_rlbench(
     max_episodes: int | None = None,
     quaternion: str = "pcm_compat",
     repo_id: str | None = None,
+    overwrite: bool = False,
 ) -> dict:
-    """Convert the episodes of one task folder (`<data>/<split>/<task>`) into a LeRobotDataset in `out`."""
+    """Convert the episodes of one task folder (`<data>/<split>/<task>`) into a LeRobotDataset in `out` (the same
+    import finished: returned; interrupted: resumed; anything else in `out` refused unless `overwrite`)."""
     task_dir, out = Path(task_dir), Path(out)
     spec = rlbench_task(task or task_dir.name)
     check_choice("quaternion", quaternion, QUATERNION_MODES)
     if not cameras:
         raise ValueError("--cameras: name at least one RLBench camera (front, left_shoulder, right_shoulder, wrist)")
     episodes = find_episodes(task_dir)[:max_episodes]
+    settings = {"source": str(task_dir), "task": spec.name, "cameras": list(cameras), "quaternion": quaternion}
+
+    def finished_differences(info: dict) -> str:
+        found = len(info.get("episodes", [])) + len(info.get("skipped", []))
+        return settings_differences(
+            {"source": info.get("source"), "episodes": found}, {"source": str(task_dir), "episodes": len(episodes)}
+        )
+
     with exclusive_output(out, "obsbench import-rlbench"):
-        sidecar = out / SIDECAR
-        if sidecar.is_file():
-            info = json.loads(sidecar.read_text())
-            if info.get("source") == str(task_dir) and len(info.get("episodes", [])) + len(info["skipped"]) == len(
-                episodes
-            ):
-                print(f"{out}: {len(info['episodes'])} {spec.name} episodes already imported")
-                return info
-            raise FileExistsError(f"{out} already holds an import of {info.get('source')}; choose another --out")
+        prepare_dataset_out(out, settings, SIDECAR, finished_differences, overwrite)
+        if (out / SIDECAR).is_file():
+            info = json.loads((out / SIDECAR).read_text())
+            print(f"{out}: {len(info['episodes'])} {spec.name} episodes already imported")
+            return info
         return _import_locked(task_dir, out, spec, episodes, tuple(cameras), text_encoder, quaternion, repo_id)
 
 

@@ -20,6 +20,7 @@ from tqdm import tqdm
 
 from lerobot_obsbench.envs.maniskill import CONTROL_FPS, DEFAULT_CONTROL_MODE, STATE_DIM, ObsBenchEnv
 from lerobot_obsbench.envs.task import eval_seeds, task_spec
+from lerobot_obsbench.outputs import write_text_atomic
 from lerobot_obsbench.policies.loading import load_policy
 from lerobot_obsbench.schema import check_compatibility
 from lerobot_obsbench.stats import wilson_interval
@@ -154,5 +155,4 @@ def evaluate(
 
 def write_result(result: dict, out: Path | None) -> None:
     if out is not None:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(result, indent=2) + "\n")
+        write_text_atomic(out, json.dumps(result, indent=2) + "\n")

@@ -26,6 +26,7 @@ from lerobot_obsbench.envs.perturbations import apply_scene_perturbation, camera
 from lerobot_obsbench.envs.task import TaskError, asset_help, first, missing_assets, task_spec, to_numpy
 from lerobot_obsbench.schema import (
     ENV_STATE_KEY,
+    MIN_IMAGE_SIZE,
     POSE_SIZE,
     PRIVILEGED_STATE_KEY,
     STATE_KEY,
@@ -122,6 +123,8 @@ class ObsBenchEnv(gym.Env):
         self.render_backend = render_backend(device)
         if control_mode not in CONTROL_MODES:
             raise ValueError(f"control_mode must be one of {CONTROL_MODES}; got {control_mode!r}")
+        if not isinstance(image_size, int) or image_size < MIN_IMAGE_SIZE:
+            raise ValueError(f"image_size must be a whole number of pixels >= {MIN_IMAGE_SIZE}; got {image_size!r}")
         import_maniskill(asset_dir)
         if missing_assets(spec):
             raise TaskError(asset_help(spec, asset_dir or os.environ.get("MS_ASSET_DIR")))

@@ -1,0 +1,188 @@
+"""Bad inputs a tired researcher gives the CLI, one row each: the command exits 2 with one line that names the
+flag or field and the way out, no traceback, before any long work, and every file that was there before is
+byte-identical after (nothing lost, nothing half-written).
+
+Each row builds its own inputs in a fresh folder (`setup(root) -> argv`) and names a fragment the error line
+must hold."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from lerobot_obsbench.cli import main
+from tests import rlbench_fixtures
+
+
+def _finished_demos(root: Path, **settings) -> Path:
+    """What `obsbench demos` leaves in a finished dataset folder (sidecar + LeRobot's meta), with `settings`."""
+    out = root / "demos"
+    (out / "meta").mkdir(parents=True)
+    (out / "meta" / "info.json").write_text('{"codebase_version": "v3.0"}\n')
+    info = {"task": "PushCube-v1", "seeds": [100000, 100001], "image_size": 128, "cameras": ["base_camera"]}
+    (out / "obsbench_demos.json").write_text(json.dumps({**info, "seed_start": 100000, **settings}) + "\n")
+    return out
+
+
+def demos_over_another_dataset(root: Path) -> list[str]:
+    out = root / "recording"
+    (out / "meta").mkdir(parents=True)
+    (out / "meta" / "info.json").write_text('{"robot_type": "koch"}\n')  # a real recording, say
+    (out / "data").mkdir()
+    (out / "data" / "episode_0.parquet").write_bytes(b"PAR1 frames")
+    return ["demos", "--task", "PushCube-v1", "--episodes", "2", "--out", str(out)]
+
+
+def demos_with_another_image_size(root: Path) -> list[str]:
+    out = _finished_demos(root, image_size=64)
+    return ["demos", "--task", "PushCube-v1", "--episodes", "2", "--out", str(out), "--image-size", "128"]
+
+
+def demos_resuming_another_task(root: Path) -> list[str]:
+    out = root / "demos"
+    (out / ".episodes").mkdir(parents=True)
+    settings = {"task": "PickCube-v1", "image_size": 128, "cameras": ["base_camera"], "seed_start": 100000}
+    (out / ".episodes" / "settings.json").write_text(json.dumps(settings) + "\n")
+    (out / ".episodes" / "seed_100000.npz").write_bytes(b"an episode")
+    return ["demos", "--task", "PushCube-v1", "--episodes", "2", "--out", str(out)]
+
+
+def demos_below_the_smallest_frame(root: Path) -> list[str]:
+    return ["demos", "--task", "PushCube-v1", "--episodes", "2", "--out", str(root / "d"), "--image-size", "16"]
+
+
+def import_rlbench_over_another_dataset(root: Path) -> list[str]:
+    from scripts import make_synthetic_dataset as synthetic
+
+    rlbench_fixtures.write_task(root / "open_drawer", synthetic, "variations", episodes=1, frames=2)
+    out = root / "dataset"
+    out.mkdir()
+    (out / "notes.txt").write_text("my own dataset\n")
+    return ["import-rlbench", "--data", str(root / "open_drawer"), "--out", str(out)]
+
+
+def convert_results_twice(root: Path) -> list[str]:
+    results = root / "results.jsonl"
+    results.write_text(json.dumps({"kind": "train", "run_id": "a"}) + "\n")  # already in the current format
+    (root / "results.jsonl.v1").write_text('{"run_id": "a", "evaluations": {}}\n')  # the only copy of the original
+    return ["convert-results", str(results)]
+
+
+def _eval(out: Path) -> list[str]:
+    # the policy path is never read: the output is checked first
+    return ["eval", "--policy.path", "/nonexistent/pretrained_model", "--env.task", "PushCube-v1", "--out", str(out)]
+
+
+def eval_out_is_a_directory(root: Path) -> list[str]:
+    (root / "results").mkdir()
+    return _eval(root / "results")
+
+
+def eval_out_exists(root: Path) -> list[str]:
+    (root / "eval.json").write_text('{"successes": 40}\n')
+    return _eval(root / "eval.json")
+
+
+def eval_out_under_a_file(root: Path) -> list[str]:
+    (root / "notes").write_text("a file, not a folder\n")
+    return _eval(root / "notes" / "eval.json")
+
+
+def print_board_unwritable_name(root: Path) -> list[str]:
+    return ["calibrate-cameras", "--print-board", str(root / "boards" / "board.unknown")]
+
+
+def _grid(root: Path, text: str) -> list[str]:
+    (root / "g.yaml").write_text(text)
+    return ["run", str(root / "g.yaml"), "--out", str(root / "out"), "--dry-run"]
+
+
+def grid_with_a_duplicated_key(root: Path) -> list[str]:
+    return _grid(root, "tasks: [PushCube-v1]\nobs_spaces: [rgb]\nsteps: 5\nsteps: 50\n")
+
+
+def grid_with_a_duplicated_seed(root: Path) -> list[str]:
+    return _grid(root, "tasks: [PushCube-v1]\nobs_spaces: [rgb]\nsteps: 5\nseeds: [1, 1]\n")
+
+
+def grid_below_the_smallest_frame(root: Path) -> list[str]:
+    return _grid(root, "tasks: [PushCube-v1]\nobs_spaces: [rgb]\nsteps: 5\nimage_size: 16\n")
+
+
+def _results(root: Path, *lines: str) -> list[str]:
+    (root / "results.jsonl").write_text("".join(line + "\n" for line in lines))
+    return ["report", str(root / "results.jsonl"), "--out", str(root / "report")]
+
+
+TRAIN = json.dumps({"kind": "train", "run_id": "r", "config": {}, "method": "m", "task": "T", "checkpoint": "c"})
+
+
+def _eval_line(**counts) -> str:
+    fields = {"eval_id": "e", "run_id": "r", "checkpoint": "last", "split": "test", "perturbation": "none"}
+    return json.dumps({"kind": "eval", **fields, **counts})
+
+
+def report_with_an_impossible_count(root: Path) -> list[str]:
+    return _results(root, TRAIN, _eval_line(episodes=50, successes=1e308))
+
+
+def report_with_a_negative_rate(root: Path) -> list[str]:
+    return _results(root, TRAIN, _eval_line(episodes=50, successes=3, success_rate=-3))
+
+
+def report_with_lines_that_are_not_records(root: Path) -> list[str]:
+    return _results(root, "null", "42")
+
+
+# (row, setup, fragments of the error output)
+ROWS = [
+    (demos_over_another_dataset, ["--out", "is not empty (data, meta)", "--overwrite"]),
+    (demos_with_another_image_size, ["other settings (image_size 64 there, 128 asked)", "--overwrite"]),
+    (demos_resuming_another_task, ["interrupted run", "task 'PickCube-v1' there, 'PushCube-v1' asked"]),
+    (demos_below_the_smallest_frame, ["argument --image-size: must be >= 32 pixels"]),
+    (import_rlbench_over_another_dataset, ["--out", "is not empty (notes.txt)", "--overwrite"]),
+    (convert_results_twice, ["holds no lerobot-obsbench 0.1 records: nothing to convert"]),
+    (eval_out_is_a_directory, ["--out", "is a directory; give a file path"]),
+    (eval_out_exists, ["--out", "already exists; add --overwrite"]),
+    (eval_out_under_a_file, ["notes is a file, so the folder cannot be created"]),
+    (print_board_unwritable_name, ["--print-board", "OpenCV could not write it", ".png"]),
+    (grid_with_a_duplicated_key, ["'steps' is given twice (lines 3 and 4)"]),
+    (grid_with_a_duplicated_seed, ["seeds lists 1 more than once"]),
+    (grid_below_the_smallest_frame, ["image_size must be a whole number >= 32; got 16"]),
+    (report_with_an_impossible_count, ["results.jsonl:2", "successes = 1e+308 is not a whole number in 0..50"]),
+    (report_with_a_negative_rate, ["results.jsonl:2", "success_rate = -3 is not a finite number in [0, 1]"]),
+    (report_with_lines_that_are_not_records, ["results.jsonl:1", "null, not a record", "results.jsonl:2"]),
+]
+
+
+def _snapshot(root: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+@pytest.mark.parametrize("setup, fragments", ROWS, ids=[row.__name__ for row, _ in ROWS])
+def test_bad_input_is_refused_in_one_line_and_keeps_every_file(tmp_path, capsys, setup, fragments):
+    argv = setup(tmp_path)
+    before = _snapshot(tmp_path)
+    try:
+        code = main(argv)
+    except SystemExit as stop:  # argparse's own refusals (a flag's type)
+        code = stop.code
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    errors = [line for line in err.splitlines() if "error:" in line]
+    assert len(errors) == 1, err  # one line says what is wrong
+    for fragment in fragments:
+        assert fragment in err, err
+    after = _snapshot(tmp_path)
+    assert {name: after.get(name) for name in before} == before  # nothing there before was changed or removed
+
+
+def test_overwrite_replaces_what_was_refused(tmp_path, capsys):
+    """The choice the refusal names works: --overwrite on an existing eval result is let through (the run then
+    fails later on the missing policy, not on the output)."""
+    argv = eval_out_exists(tmp_path)
+    assert main([*argv, "--overwrite"]) != 0
+    assert "already exists" not in capsys.readouterr().err
