@@ -78,14 +78,14 @@ def aggregate_estimates(scores: dict[str, np.ndarray]) -> dict[str, dict]:
     return out
 
 
-def improvement_estimate(x: np.ndarray, y: np.ndarray) -> tuple[float, float | None, float | None]:
-    """P(x > y) of two score matrices over the same tasks, with its 95% interval (None when both have one
-    seed: nothing to resample)."""
+def improvement_estimate(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float] | None:
+    """P(x > y) of two score matrices over the same tasks, with its 95% interval; None when both have one
+    training seed (one run against one run gives 0, 1/2 or 1 per task: not an estimate)."""
     from rliable import metrics
 
-    point, interval = _interval([x, y], metrics.probability_of_improvement)
     if x.shape[0] == 1 and y.shape[0] == 1:
-        return float(point), None, None
+        return None
+    point, interval = _interval([x, y], metrics.probability_of_improvement)
     return float(point), float(interval[0]), float(interval[1])
 
 

@@ -450,7 +450,7 @@ def aggregate_section(records: list[dict], cells: dict[str, dict[str, Cell]], re
                 over_blind[label] = (blind, aggregates.improvement_estimate(scores[label], scores[blind]))
         if reference is not None and label != reference:
             over_reference[label] = (reference, aggregates.improvement_estimate(scores[label], scores[reference]))
-    pairs = {(x, y): e for found in (over_blind, over_reference) for x, (y, e) in found.items()}
+    pairs = {(x, y): e for found in (over_blind, over_reference) for x, (y, e) in found.items() if e is not None}
     header = ["method", "training seeds", "Mean S.R. [95% CI]", "IQM [95% CI]", "P(improvement over blind) [95% CI]"]
     if reference is not None:
         header.append(f"P(improvement over {reference}) [95% CI]")
@@ -459,7 +459,11 @@ def aggregate_section(records: list[dict], cells: dict[str, dict[str, Cell]], re
         e = estimates[label]
         cells_text = [str(e["seeds"]), aggregates.interval_text(e["mean_sr"]), aggregates.interval_text(e["iqm"])]
         for found in (over_blind, over_reference) if reference is not None else (over_blind,):
-            cells_text.append(aggregates.interval_text(found[label][1]) if label in found else "—")
+            estimate = found.get(label, (None, None))[1]
+            one_seed = label in found and estimate is None
+            cells_text.append(
+                "— (one seed each)" if one_seed else aggregates.interval_text(estimate) if estimate else "—"
+            )
         rows.append((label, [(c, None) for c in cells_text]))
     figures = {}
     if estimates:
@@ -474,7 +478,7 @@ def aggregate_section(records: list[dict], cells: dict[str, dict[str, Cell]], re
         )
     checks = {
         "aggregates": estimates,
-        "probability_of_improvement": {f"{x} > {y}": list(v) for (x, y), v in pairs.items()},
+        "probability_of_improvement": {f"{x} > {y}": list(e) for (x, y), e in pairs.items()},
     }
     warnings = [f"{label} is left out of the aggregates: {why}" for label, why in left_out.items()]
     return (header, rows), figures, checks, warnings
