@@ -844,14 +844,42 @@ HARDWARE_COMMANDS = {
 }
 
 
+# What a Ctrl-C keeps, per command (the others write nothing until their work is done).
+INTERRUPTED = {
+    "run": "every finished unit is kept in the results file (a killed training resumes from its last checkpoint); "
+    "run the same command to go on",
+    "demos": "the recorded episodes are kept in --out; run the same command to go on",
+    "import-rlbench": "the converted episodes are kept in --out; run the same command to go on",
+    "eval": "no result was written (--out is written once every episode is done)",
+    "record": "every saved episode is kept in --dataset.root; run the same command to go on",
+    "rollout": "the episodes' videos are kept in --out; results.json is written once every episode is judged",
+}
+
+
+def hardware_command(name: str, argv: list[str]) -> int:
+    """`obsbench record` / `rollout`: LeRobot-style (draccus) commands; their set-up errors in one line."""
+    import importlib
+
+    from draccus.utils import DraccusException
+
+    import lerobot_obsbench  # noqa: F401  (registers the robots, cameras and policies)
+    from lerobot_obsbench.robots.checks import RobotSetupError
+
+    try:
+        return importlib.import_module(HARDWARE_COMMANDS[name][0]).main(argv)
+    # ValueError: LeRobot's device factories wrap what stops them (a missing SDK, a bad port) in one
+    except (DraccusException, RobotSetupError, ValueError, FileNotFoundError, PermissionError, FileExistsError) as err:
+        print(f"obsbench {name}: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"\nobsbench {name}: interrupted; {INTERRUPTED[name]}", file=sys.stderr)
+        return 130
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv and argv[0] in HARDWARE_COMMANDS:
-        import importlib
-
-        import lerobot_obsbench
-
-        return importlib.import_module(HARDWARE_COMMANDS[argv[0]][0]).main(argv[1:])
+        return hardware_command(argv[0], argv[1:])
     args = build_parser().parse_args(argv)
     import lerobot_obsbench  # noqa: F401  (registers policies and encoders)
     from lerobot_obsbench.bench.grid import GridError
@@ -889,6 +917,10 @@ def main(argv: list[str] | None = None) -> int:
     except (PermissionError, FileNotFoundError, FileExistsError) as err:  # a path the user gave: one line
         print(f"obsbench {args.command}: error: {err}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        kept = INTERRUPTED.get(args.command, "nothing is left half-written; run the same command again")
+        print(f"\nobsbench {args.command}: interrupted; {kept}", file=sys.stderr)
+        return 130  # the shell's code for a SIGINT
 
 
 if __name__ == "__main__":

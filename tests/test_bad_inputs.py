@@ -136,6 +136,41 @@ def report_with_lines_that_are_not_records(root: Path) -> list[str]:
     return _results(root, "null", "42")
 
 
+def rollout_with_a_missing_checkpoint(root: Path) -> list[str]:
+    """The port does not exist either: the checkpoint must be refused before the robot is made."""
+    return [
+        "rollout",
+        "--robot.type=obsbench_koch_follower",
+        f"--robot.port={root / 'ttyACM0'}",
+        f"--policy_path={root / 'outputs' / 'train' / 'pretrained_model'}",
+        f"--out={root / 'rollouts'}",
+    ]
+
+
+def rollout_with_a_bad_value(root: Path) -> list[str]:
+    return [
+        "rollout",
+        "--robot.type=obsbench_koch_follower",
+        "--robot.port=/dev/ttyACM0",
+        "--policy_path=x",
+        "--episodes=many",
+    ]
+
+
+def record_one_arm_as_readme_writes_it(root: Path) -> list[str]:
+    """README's one-arm pair (obsbench_koch_follower + LeRobot's koch_leader) is accepted; it then stops, in one
+    line, at what this machine lacks (the Dynamixel SDK, or the port)."""
+    return [
+        "record",
+        "--robot.type=obsbench_koch_follower",
+        f"--robot.port={root / 'ttyACM0'}",
+        "--teleop.type=koch_leader",
+        f"--teleop.port={root / 'ttyACM1'}",
+        f"--dataset.root={root / 'demos'}",
+        "--dataset.task=pick up the cube",
+    ]
+
+
 # (row, setup, fragments of the error output)
 ROWS = [
     (demos_over_another_dataset, ["--out", "is not empty (data, meta)", "--overwrite"]),
@@ -154,6 +189,9 @@ ROWS = [
     (report_with_an_impossible_count, ["results.jsonl:2", "successes = 1e+308 is not a whole number in 0..50"]),
     (report_with_a_negative_rate, ["results.jsonl:2", "success_rate = -3 is not a finite number in [0, 1]"]),
     (report_with_lines_that_are_not_records, ["results.jsonl:1", "null, not a record", "results.jsonl:2"]),
+    (rollout_with_a_missing_checkpoint, ["obsbench rollout: error:", "pretrained_model"]),
+    (rollout_with_a_bad_value, ["obsbench rollout: error:", "episodes"]),
+    (record_one_arm_as_readme_writes_it, ["obsbench record: error:", "KochRGBDFollowerConfig"]),
 ]
 
 

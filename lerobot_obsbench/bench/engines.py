@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import multiprocessing
+import signal
 
 from lerobot_obsbench.bench.units import die_with_parent
 
@@ -22,7 +23,7 @@ class LocalEngine:
     def __init__(self, workers: int = 1):
         self.workers = max(1, workers)
         self.pool = cf.ProcessPoolExecutor(
-            self.workers, mp_context=multiprocessing.get_context("spawn"), initializer=die_with_parent
+            self.workers, mp_context=multiprocessing.get_context("spawn"), initializer=_worker_start
         )
 
     def submit(self, fn, *args, cpus: float = 1, gpus: float = 0):
@@ -35,8 +36,20 @@ class LocalEngine:
     def result(self, handle):
         return handle.result()
 
-    def shutdown(self) -> None:
+    def shutdown(self, abort: bool = False) -> None:
+        """Stop taking work; `abort` (Ctrl-C): also kill the workers and with them their units' subprocesses,
+        instead of letting the interpreter's exit wait for the running units to finish."""
+        if abort:
+            for process in list(self.pool._processes.values()):  # the executor has no public kill
+                process.kill()
         self.pool.shutdown(wait=False, cancel_futures=True)
+
+
+def _worker_start() -> None:
+    """A pool worker dies with the driver and leaves Ctrl-C to it (the driver stops the grid in one line; a
+    worker interrupted too would print its own traceback)."""
+    die_with_parent()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 class RayEngine:
@@ -73,7 +86,7 @@ class RayEngine:
     def result(self, handle):
         return self.ray.get(handle)
 
-    def shutdown(self) -> None:
+    def shutdown(self, abort: bool = False) -> None:
         pass  # the cluster outlives the driver; a local instance stops with this process
 
 

@@ -444,6 +444,9 @@ def run_grid(
             if not runner.pending:
                 echo("nothing to do: every run is trained and every evaluation recorded")
             runner.loop(progress_every)
+        except KeyboardInterrupt:
+            runner.engine.shutdown(abort=True)
+            raise
         finally:
             runner.engine.shutdown()
     return runner.failures

@@ -284,6 +284,7 @@ def _keyboard_events() -> dict:
 def main(argv: list[str] | None = None) -> int:
     import draccus
     from lerobot.robots.utils import make_robot_from_config
+    from lerobot.teleoperators import koch_leader  # noqa: F401  (registers --teleop.type=koch_leader, one arm)
     from lerobot.teleoperators.utils import make_teleoperator_from_config
 
     config = draccus.parse(RecordConfig, args=argv)

@@ -25,7 +25,7 @@ from lerobot.policies.act.modeling_act import ACTPolicy
 from lerobot.robots import RobotConfig
 
 from lerobot_obsbench.policies.env_passthrough import frame_to_policy_batch
-from lerobot_obsbench.policies.loading import load_policy, predict_chunk
+from lerobot_obsbench.policies.loading import check_policy_path, load_policy, predict_chunk
 from lerobot_obsbench.robots.checks import RobotSetupError, require_calibrated
 from lerobot_obsbench.robots.frames import action_dict, dataset_features, motor_keys, observation_frame
 from lerobot_obsbench.robots.realtime import AsyncChunks, StepTimer
@@ -243,6 +243,7 @@ def main(argv: list[str] | None = None) -> int:
     from lerobot.robots.utils import make_robot_from_config
 
     config = draccus.parse(RolloutConfig, args=argv)
+    check_policy_path(config.policy_path)  # before the robot's ports and cameras are touched
     result = rollout(make_robot_from_config(config.robot), config)
     print(f"{result['successes']}/{result['episodes']} successes, 95% CI {result['ci95']}; {config.out}/results.json")
     return 0
