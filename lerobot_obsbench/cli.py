@@ -154,6 +154,7 @@ def cmd_import_rlbench(args: argparse.Namespace) -> int:
         max_episodes=args.max_episodes,
         quaternion=args.quaternion,
         overwrite=args.overwrite,
+        strict=args.strict,
     )
     skipped = f"; {len(info['skipped'])} unreadable episodes skipped (listed in obsbench_import.json)"
     print(
@@ -606,6 +607,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--data", type=Path, required=True, help="the task's folder, e.g. data/rlbench/train/open_drawer")
     p.add_argument("--out", type=Path, required=True, help="dataset folder: new, empty, or this import's (resumed)")
     p.add_argument("--overwrite", action="store_true", help="delete what --out holds first")
+    p.add_argument("--strict", action="store_true", help="stop at the first unreadable episode (default: skip it)")
     p.add_argument("--task", default=None, help="RLBench task name (default: the folder's name)")
     p.add_argument("--cameras", nargs="+", default=["front"], help="front (the paper), left_shoulder, wrist, ...")
     p.add_argument("--max-episodes", type=positive_int, default=None)

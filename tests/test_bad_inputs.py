@@ -63,6 +63,27 @@ def import_rlbench_over_another_dataset(root: Path) -> list[str]:
     return ["import-rlbench", "--data", str(root / "open_drawer"), "--out", str(out)]
 
 
+def _rlbench_with_gray_depth(root: Path) -> Path:
+    """An RLBench task folder whose first depth PNG is 16-bit grayscale (as other exporters write depth)."""
+    import numpy as np
+    from PIL import Image
+
+    from scripts import make_synthetic_dataset as synthetic
+
+    rlbench_fixtures.write_task(root / "open_drawer", synthetic, "variations", episodes=1, frames=2)
+    (png,) = root.glob("open_drawer/**/front_depth/0.png")
+    Image.fromarray(np.full((32, 32), 1200, dtype=np.uint16)).save(png)
+    return root / "open_drawer"
+
+
+def import_rlbench_gray_depth(root: Path) -> list[str]:
+    return ["import-rlbench", "--data", str(_rlbench_with_gray_depth(root)), "--out", str(root / "dataset")]
+
+
+def import_rlbench_gray_depth_strict(root: Path) -> list[str]:
+    return [*import_rlbench_gray_depth(root), "--strict"]
+
+
 def convert_results_twice(root: Path) -> list[str]:
     results = root / "results.jsonl"
     results.write_text(json.dumps({"kind": "train", "run_id": "a"}) + "\n")  # already in the current format
@@ -178,6 +199,8 @@ ROWS = [
     (demos_resuming_another_task, ["interrupted run", "task 'PickCube-v1' there, 'PushCube-v1' asked"]),
     (demos_below_the_smallest_frame, ["argument --image-size: must be >= 32 pixels"]),
     (import_rlbench_over_another_dataset, ["--out", "is not empty (notes.txt)", "--overwrite"]),
+    (import_rlbench_gray_depth, ["none of its 1 episodes could be read"]),
+    (import_rlbench_gray_depth_strict, ["front_depth/0.png: a I;16 PNG", "RLBench's depth PNGs are 8-bit RGB"]),
     (convert_results_twice, ["holds no lerobot-obsbench 0.1 records: nothing to convert"]),
     (eval_out_is_a_directory, ["--out", "is a directory; give a file path"]),
     (eval_out_exists, ["--out", "already exists; add --overwrite"]),

@@ -67,9 +67,11 @@ def import_rlbench(
     quaternion: str = "pcm_compat",
     repo_id: str | None = None,
     overwrite: bool = False,
+    strict: bool = False,
 ) -> dict:
     """Convert the episodes of one task folder (`<data>/<split>/<task>`) into a LeRobotDataset in `out` (the same
-    import finished: returned; interrupted: resumed; anything else in `out` refused unless `overwrite`)."""
+    import finished: returned; interrupted: resumed; anything else in `out` refused unless `overwrite`). An
+    unreadable episode is skipped and listed in the sidecar (`strict`: stop at the first one instead)."""
     task_dir, out = Path(task_dir), Path(out)
     spec = rlbench_task(task or task_dir.name)
     check_choice("quaternion", quaternion, QUATERNION_MODES)
@@ -90,10 +92,10 @@ def import_rlbench(
             info = json.loads((out / SIDECAR).read_text())
             print(f"{out}: {len(info['episodes'])} {spec.name} episodes already imported")
             return info
-        return _import_locked(task_dir, out, spec, episodes, tuple(cameras), text_encoder, quaternion, repo_id)
+        return _import_locked(task_dir, out, spec, episodes, tuple(cameras), text_encoder, quaternion, repo_id, strict)
 
 
-def _import_locked(task_dir, out, spec, episodes, cameras, text_encoder, quaternion, repo_id) -> dict:
+def _import_locked(task_dir, out, spec, episodes, cameras, text_encoder, quaternion, repo_id, strict) -> dict:
     staging = out / STAGING
     staging.mkdir(parents=True, exist_ok=True)
     for leftover in staging.glob(f"*{TMP_SUFFIX}"):  # cut off by a kill mid-write
@@ -106,6 +108,8 @@ def _import_locked(task_dir, out, spec, episodes, cameras, text_encoder, quatern
             try:
                 frames, meta = convert_episode(ref, spec, cameras, text_encoder, quaternion)
             except RLBenchFormatError as error:
+                if strict:
+                    raise
                 tqdm.write(f"skipped {ref.path}: {error}")
                 skipped.append({"path": str(ref.path), "error": str(error)})
                 continue

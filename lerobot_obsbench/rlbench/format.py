@@ -37,6 +37,10 @@ EPISODE_PATTERN = re.compile(r"episode(\d+)$")
 VARIATION_PATTERN = re.compile(r"variation(\d+)$")
 
 
+# PIL modes of RLBench's own depth PNGs (its generator writes the packed depth as RGB; RGBA is read the same way)
+DEPTH_PNG_MODES = ("RGB", "RGBA")
+
+
 class RLBenchFormatError(ValueError):
     """A demonstration that cannot be read: names the file and what is wrong with it."""
 
@@ -288,7 +292,14 @@ def camera_frame(ref: EpisodeRef, observation, camera: str, t: int) -> dict[str,
             raise RLBenchFormatError(f"{path} missing (every frame needs {camera}_rgb and {camera}_depth PNGs)")
     try:
         rgb = np.asarray(Image.open(rgb_path).convert("RGB"))
-        packed = np.asarray(Image.open(depth_path).convert("RGB"))
+        with Image.open(depth_path) as depth_png:
+            if depth_png.mode not in DEPTH_PNG_MODES:  # converting would read gray levels as packed depth
+                raise RLBenchFormatError(
+                    f"{depth_path}: a {depth_png.mode} PNG; RLBench's depth PNGs are 8-bit RGB, the depth packed "
+                    "into the three channels by its generator (a 1-channel or 16-bit depth image, as other "
+                    "exporters write, is not RLBench's format: regenerate the episodes with RLBench's tools)"
+                )
+            packed = np.asarray(depth_png.convert("RGB"))
     except OSError as error:
         raise RLBenchFormatError(f"{ref.path}: frame {t} of {camera}: unreadable PNG ({error})") from error
     if rgb.shape[:2] != packed.shape[:2]:
