@@ -132,6 +132,10 @@ def grid_below_the_smallest_frame(root: Path) -> list[str]:
     return _grid(root, "tasks: [PushCube-v1]\nobs_spaces: [rgb]\nsteps: 5\nimage_size: 16\n")
 
 
+def grid_with_a_task_it_cannot_record(root: Path) -> list[str]:
+    return _grid(root, "tasks: [TurnFaucet-v1]\nobs_spaces: [rgb]\nsteps: 5\n")
+
+
 def _results(root: Path, *lines: str) -> list[str]:
     (root / "results.jsonl").write_text("".join(line + "\n" for line in lines))
     return ["report", str(root / "results.jsonl"), "--out", str(root / "report")]
@@ -209,6 +213,7 @@ ROWS = [
     (grid_with_a_duplicated_key, ["'steps' is given twice (lines 3 and 4)"]),
     (grid_with_a_duplicated_seed, ["seeds lists 1 more than once"]),
     (grid_below_the_smallest_frame, ["image_size must be a whole number >= 32; got 16"]),
+    (grid_with_a_task_it_cannot_record, ["TurnFaucet-v1 has no scripted expert", "obsbench import-h5", "assets"]),
     (report_with_an_impossible_count, ["results.jsonl:2", "successes = 1e+308 is not a whole number in 0..50"]),
     (report_with_a_negative_rate, ["results.jsonl:2", "success_rate = -3 is not a finite number in [0, 1]"]),
     (report_with_lines_that_are_not_records, ["results.jsonl:1", "null, not a record", "results.jsonl:2"]),

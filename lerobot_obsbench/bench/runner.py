@@ -29,6 +29,7 @@ from lerobot_obsbench.bench.units import (
     train_unit,
     training_progress,
 )
+from lerobot_obsbench.envs.task import TASKS, asset_help, missing_assets, task_spec
 from lerobot_obsbench.locks import exclusive_output
 
 RESULTS_FILE = "results.jsonl"
@@ -411,6 +412,25 @@ class Driver:
             self.echo(line)
 
 
+def check_tasks(grid: Grid) -> None:
+    """Refuse, before anything runs, a task the grid cannot record demonstrations of (no scripted expert) or
+    cannot simulate here (its ManiSkill assets missing), naming both problems and their fixes."""
+    for name in grid.tasks:
+        spec = task_spec(name)
+        problems = []
+        if spec.expert is None and not grid.checkpoints_from:
+            experts = ", ".join(n for n, t in TASKS.items() if t.expert)
+            problems.append(
+                f"{name} has no scripted expert, and grids record their demonstrations with one (tasks with "
+                f"experts: {experts}); for {name}, convert official demonstrations (obsbench import-h5) and train "
+                "on them with lerobot-train"
+            )
+        if missing_assets(spec):
+            problems.append(asset_help(spec, os.environ.get("MS_ASSET_DIR")))
+        if problems:
+            raise GridError(f"{grid.name}: " + ". Also: ".join(problems))
+
+
 def run_grid(
     grid: Grid,
     out: Path,
@@ -430,6 +450,7 @@ def run_grid(
     the unit asks for). `loader_workers`: LeRobot's DataLoader workers per training run (0 is fastest on a
     2-core CPU, where a worker competes with training)."""
     out = Path(out)
+    check_tasks(grid)
     if dry_run:
         print_plan(grid, load_work(grid, out, echo), out, device, echo)
         return 0
