@@ -104,3 +104,18 @@ def test_colour_and_depth_at_different_resolutions(synthetic_module, tmp_path_fa
 def test_not_a_dataset_is_one_line(tmp_path, capsys):
     assert main(["validate", "--root", str(tmp_path / "nothing")]) == 2
     assert "is not a LeRobot dataset (no meta/info.json)" in capsys.readouterr().err
+
+
+def test_constant_depth_everywhere_fails_the_depth_spaces_and_a_few_flat_frames_are_a_note(
+    synthetic_module, tmp_path_factory, capsys
+):
+    """What a 1-channel depth image read as RLBench's packed depth leaves: one value over the whole view."""
+    flat = lambda f: {DEPTH: np.full_like(f[DEPTH], 4500)}
+    root = _write(synthetic_module, tmp_path_factory, "flat", lambda ep, index, frame: {**frame, **flat(frame)})
+    code, out = _validate(root, capsys)
+    verdicts = _verdicts(out)
+    assert code == 1 and verdicts["rgb"] and not any(verdicts[s] for s in POINT_SPACES)
+    assert "18 of 18 frames hold one depth value over the whole view: this is not depth" in out
+    root = _write(synthetic_module, tmp_path_factory, "two_flat", _in_episode(0, flat, frames={1, 2}))
+    code, out = _validate(root, capsys)
+    assert code == 0 and "2 of 18 frames hold one depth value over the whole view (in episode 0" in out

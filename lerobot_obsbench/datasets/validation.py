@@ -4,8 +4,9 @@ The metadata check (`schema.validate_features`) says which keys exist with which
 frame's depth, intrinsics and camera pose from the dataset's parquet files (colour stays in its videos: its
 resolution comes from the metadata) and finds what would train silently wrong or crash hours in:
 
-- depth: an integer dtype, values that look like millimetres (median valid depth between 2 cm and 20 m), and
-  per episode the frames with no valid pixel at all; an episode where most frames are empty fails, a few empty
+- depth: an integer dtype, values that look like millimetres (median valid depth between 2 cm and 20 m), not one
+  value over the whole view in every frame (a conversion gone wrong; some such frames are reported), and per
+  episode the frames with no valid pixel at all; an episode where most frames are empty fails, a few empty
   frames are reported (training gives them the empty-cloud point, see `lerobot_obsbench.spaces`);
 - intrinsics: finite, with fx, fy > 0;
 - cam2world: finite and rigid (orthonormal rotation with det +1, last row 0 0 0 1);
@@ -129,6 +130,15 @@ def _check_depth(cam: str, features: dict, data: dict, episodes: np.ndarray, sca
     else:
         problems.append(f"{key}: every frame's depth is 0 (invalid): no depth was recorded")
         return
+    # A frame whose valid pixels all hold one value: a camera square above a bare table can see that, a whole
+    # dataset of them is a conversion gone wrong (a 1-channel image decoded as RLBench's packed depth, say)
+    flat = valid.any(axis=1) & (np.where(valid, depth, depth.max()).min(axis=1) == depth.max(axis=1))
+    if flat.any():
+        summary = f"{key}: {int(flat.sum())} of {len(episodes)} frames hold one depth value over the whole view"
+        if flat[valid.any(axis=1)].all():
+            problems.append(f"{summary}: this is not depth; check how it was converted")
+        else:
+            scan.notes.append(f"{summary} (in {_episodes(flat, episodes)})")
     if empty.any():
         fractions = {int(e): float(empty[episodes == e].mean()) for e in np.unique(episodes[empty])}
         mostly = [e for e, f in fractions.items() if f > MAX_EMPTY_FRACTION]
