@@ -883,6 +883,9 @@ def main(argv: list[str] | None = None) -> int:
     if argv and argv[0] in HARDWARE_COMMANDS:
         return hardware_command(argv[0], argv[1:])
     args = build_parser().parse_args(argv)
+    import httpx
+    from huggingface_hub.errors import HfHubHTTPError, OfflineModeIsEnabled
+
     import lerobot_obsbench  # noqa: F401  (registers policies and encoders)
     from lerobot_obsbench.bench.grid import GridError
     from lerobot_obsbench.bench.hub import PushError
@@ -918,6 +921,14 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except (PermissionError, FileNotFoundError, FileExistsError) as err:  # a path the user gave: one line
         print(f"obsbench {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except (HfHubHTTPError, OfflineModeIsEnabled, httpx.HTTPError) as err:  # the Hub refused, or is unreachable
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        print(
+            f"obsbench {args.command}: error: the Hugging Face Hub: {first} (check the network, HF_HUB_OFFLINE and "
+            "your token: hf auth login)",
+            file=sys.stderr,
+        )
         return 2
     except KeyboardInterrupt:
         kept = INTERRUPTED.get(args.command, "nothing is left half-written; run the same command again")

@@ -196,6 +196,14 @@ def record_one_arm_as_readme_writes_it(root: Path) -> list[str]:
     ]
 
 
+def push_dataset_without_the_hub(root: Path) -> list[str]:
+    """Offline (CI), unreachable (here) or refused (no token): one line either way."""
+    from scripts import make_synthetic_dataset as synthetic
+
+    dataset = synthetic.write_dataset(root / "ds", episodes=1, frames=4, size=32, seed=0, use_video=False)
+    return ["push-dataset", str(dataset), "someone/demos"]
+
+
 # (row, setup, fragments of the error output)
 ROWS = [
     (demos_over_another_dataset, ["--out", "is not empty (data, meta)", "--overwrite"]),
@@ -219,6 +227,7 @@ ROWS = [
     (report_with_lines_that_are_not_records, ["results.jsonl:1", "null, not a record", "results.jsonl:2"]),
     (rollout_with_a_missing_checkpoint, ["obsbench rollout: error:", "pretrained_model"]),
     (rollout_with_a_bad_value, ["obsbench rollout: error:", "episodes"]),
+    (push_dataset_without_the_hub, ["obsbench push-dataset: error: the Hugging Face Hub:", "HF_HUB_OFFLINE"]),
     (record_one_arm_as_readme_writes_it, ["obsbench record: error:", "KochRGBDFollowerConfig"]),
 ]
 
