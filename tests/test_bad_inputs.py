@@ -261,3 +261,33 @@ def test_overwrite_replaces_what_was_refused(tmp_path, capsys):
     argv = eval_out_exists(tmp_path)
     assert main([*argv, "--overwrite"]) != 0
     assert "already exists" not in capsys.readouterr().err
+
+
+def test_import_rlbench_skips_unreadable_episodes_and_lists_them(tmp_path, capsys):
+    """One unreadable episode (its pickle missing, another's depth PNG garbage) does not stop the import: the
+    others are imported and the skipped ones listed; --strict stops at the first."""
+    from scripts import make_synthetic_dataset as synthetic
+
+    rlbench_fixtures.write_task(tmp_path / "open_drawer", synthetic, "variations", episodes=3, frames=2)
+    first, second, third = sorted(tmp_path.glob("open_drawer/**/episodes/episode*"))
+    (first / "low_dim_obs.pkl").unlink()
+    (second / "front_depth" / "0.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"garbage" * 10)
+    args = ["import-rlbench", "--data", str(tmp_path / "open_drawer")]
+    assert main([*args, "--out", str(tmp_path / "strict"), "--strict"]) == 2
+    assert "low_dim_obs.pkl missing" in capsys.readouterr().err
+    assert main([*args, "--out", str(tmp_path / "out")]) == 0
+    out = capsys.readouterr().out
+    assert "1 open_drawer episodes imported" in out and "2 unreadable episodes skipped" in out
+    info = json.loads((tmp_path / "out" / "obsbench_import.json").read_text())
+    assert [e["path"] for e in info["episodes"]] == [str(third)]
+    assert {s["path"] for s in info["skipped"]} == {str(first), str(second)}
+
+
+def test_print_board_into_a_new_folder_writes_the_board(tmp_path, capsys):
+    """`--print-board missing/dir/board.png` used to report success and write nothing."""
+    import cv2
+
+    board = tmp_path / "missing" / "dir" / "board.png"
+    assert main(["calibrate-cameras", "--print-board", str(board)]) == 0
+    image = cv2.imread(str(board))
+    assert image is not None and image.shape[0] > 100 and "print at 100 %" in capsys.readouterr().out

@@ -106,7 +106,10 @@ class SafeUnpickler(pickle.Unpickler):
 
 
 def load_pickle(path: Path):
-    """Unpickle one RLBench file safely; a truncated, corrupt or malicious file raises RLBenchFormatError."""
+    """Unpickle one RLBench file safely; a missing, truncated, corrupt or malicious file raises
+    RLBenchFormatError."""
+    if not Path(path).is_file():
+        raise RLBenchFormatError(f"{path} missing (every RLBench episode has one)")
     try:
         with open(path, "rb") as f:
             return SafeUnpickler(f, encoding="latin1").load()
@@ -300,7 +303,7 @@ def camera_frame(ref: EpisodeRef, observation, camera: str, t: int) -> dict[str,
                     "exporters write, is not RLBench's format: regenerate the episodes with RLBench's tools)"
                 )
             packed = np.asarray(depth_png.convert("RGB"))
-    except OSError as error:
+    except (OSError, SyntaxError, ValueError) as error:  # PIL raises SyntaxError for a broken PNG stream
         raise RLBenchFormatError(f"{ref.path}: frame {t} of {camera}: unreadable PNG ({error})") from error
     if rgb.shape[:2] != packed.shape[:2]:
         raise RLBenchFormatError(f"{rgb_path}: colour {rgb.shape[:2]} and depth {packed.shape[:2]} differ in size")
