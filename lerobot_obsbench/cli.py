@@ -116,6 +116,7 @@ def cmd_import(args: argparse.Namespace) -> int:
         max_episodes=args.max_episodes,
         only_success=not args.all,
         asset_dir=args.asset_dir,
+        overwrite=args.overwrite,
     )
     print(f"{args.out}: {len(info['episode_ids'])} {info['task']} episodes imported from {args.h5}")
     return 0
@@ -592,7 +593,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="convert official ManiSkill trajectories (.h5 + .json) into the schema by replaying their env states",
     )
     p.add_argument("--h5", type=Path, required=True)
-    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--out", type=Path, required=True, help="dataset folder: new, empty, or this import's (resumed)")
+    p.add_argument("--overwrite", action="store_true", help="delete what --out holds first")
     p.add_argument("--image-size", type=frame_size, default=128)
     p.add_argument("--cameras", nargs="+", default=["base_camera"])
     p.add_argument("--max-episodes", type=positive_int, default=None)

@@ -380,6 +380,9 @@ def test_import_maniskill_trajectories_written_by_record_episode(tmp_path):
                 np.testing.assert_allclose(sample["action"].numpy(), actions[t], atol=1e-6)
                 # the frame shows the recorded state, not a re-simulation
                 np.testing.assert_allclose(sample["observation.state"][:9].numpy(), qpos[t], atol=1e-5)
+    assert import_trajectories(h5, tmp_path / "ds", image_size=32) == info  # the same import: kept, not redone
+    with pytest.raises(FileExistsError, match=r"other settings \(image_size 32 there, 64 asked\)"):
+        import_trajectories(h5, tmp_path / "ds", image_size=64)
 
 
 @pytest.mark.parametrize(

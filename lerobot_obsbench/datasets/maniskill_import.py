@@ -15,11 +15,19 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from lerobot_obsbench.datasets.recording import STAGING, assemble, save_episode_file
+from lerobot_obsbench.datasets.recording import (
+    STAGING,
+    assemble,
+    prepare_dataset_out,
+    save_episode_file,
+    settings_differences,
+)
 from lerobot_obsbench.envs.maniskill import DEFAULT_CONTROL_MODE
 from lerobot_obsbench.envs.task import TaskError, task_spec
 from lerobot_obsbench.locks import exclusive_output
 from lerobot_obsbench.schema import ACTION_KEY
+
+SIDECAR = "obsbench_import.json"
 
 
 def read_trajectory_metadata(h5_path: Path) -> dict:
@@ -41,8 +49,10 @@ def import_trajectories(
     only_success: bool = True,
     repo_id: str | None = None,
     asset_dir: str | None = None,
+    overwrite: bool = False,
 ) -> dict:
-    """Replay the trajectories of `h5_path` into a LeRobotDataset in `out` (resumable; one importer per `out`)."""
+    """Replay the trajectories of `h5_path` into a LeRobotDataset in `out` (resumable; one importer per `out`; the
+    same import finished: returned; anything else in `out` refused unless `overwrite`)."""
     h5_path, out = Path(h5_path), Path(out)
     meta = read_trajectory_metadata(h5_path)
     task = meta["env_info"]["env_id"]
@@ -55,7 +65,18 @@ def import_trajectories(
     episodes = episodes[:max_episodes] if max_episodes else episodes
     if not episodes:
         raise ValueError(f"{h5_path}: no{' successful' if only_success else ''} episodes to import.")
+    settings = {
+        "source": str(h5_path),
+        "task": task,
+        "episode_ids": [ep["episode_id"] for ep in episodes],
+        "image_size": image_size,
+        "cameras": list(cameras),
+    }
     with exclusive_output(out, "obsbench import-h5"):
+        prepare_dataset_out(out, settings, SIDECAR, lambda info: settings_differences(info, settings), overwrite)
+        if (out / SIDECAR).is_file():
+            print(f"{out}: {len(episodes)} {task} episodes already imported")
+            return json.loads((out / SIDECAR).read_text())
         return _import_locked(h5_path, out, task, episodes, image_size, cameras, control_mode, repo_id, asset_dir)
 
 
@@ -97,6 +118,6 @@ def _import_locked(h5_path, out, task, episodes, image_size, cameras, control_mo
         "image_size": image_size,
         "cameras": list(cameras),
     }
-    (out / "obsbench_import.json").write_text(json.dumps(info, indent=2) + "\n")
+    (out / SIDECAR).write_text(json.dumps(info, indent=2) + "\n")
     shutil.rmtree(staging)
     return info
