@@ -100,12 +100,12 @@ def _bounds(estimate: tuple[float, float | None, float | None]) -> tuple[float, 
     return (point, point) if low is None else (low, high)
 
 
-def interval_chart(estimates: dict[str, dict]) -> bytes:
-    """rliable's interval plot of Mean S.R. and IQM per method (one-seed methods: the point only)."""
+def interval_chart(estimates: dict[str, dict]):
+    """rliable's interval plot of Mean S.R. and IQM per method (one-seed methods: the point only), as a
+    matplotlib figure."""
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from rliable import plot_utils
 
     labels = sorted(estimates)
@@ -120,11 +120,11 @@ def interval_chart(estimates: dict[str, dict]) -> bytes:
         xlabel_y_coordinate=-0.35,
         subfigure_width=4.0,
     )
-    return _png(fig, plt)
+    return fig
 
 
-def improvement_chart(estimates: dict[tuple[str, str], tuple[float, float | None, float | None]]) -> bytes:
-    """rliable's probability-of-improvement plot: one bar per (method, reference) pair."""
+def improvement_chart(estimates: dict[tuple[str, str], tuple[float, float, float]]):
+    """rliable's probability-of-improvement plot, one bar per (method, reference) pair, as a matplotlib figure."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -133,7 +133,7 @@ def improvement_chart(estimates: dict[tuple[str, str], tuple[float, float | None
 
     separator = "\t"  # split back into the two labels by rliable; labels never hold a tab
     points = {f"{x}{separator}{y}": e[0] for (x, y), e in estimates.items()}
-    intervals = {f"{x}{separator}{y}": np.array(_bounds(e)) for (x, y), e in estimates.items()}
+    intervals = {f"{x}{separator}{y}": np.array(e[1:]) for (x, y), e in estimates.items()}
     fig, ax = plt.subplots(figsize=(4.5, 0.5 + 0.45 * len(points)))
     plot_utils.plot_probability_of_improvement(
         points,
@@ -144,13 +144,4 @@ def improvement_chart(estimates: dict[tuple[str, str], tuple[float, float | None
         ticklabelsize="small",
         labelsize="small",
     )
-    return _png(fig, plt)
-
-
-def _png(fig, plt) -> bytes:
-    import io
-
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    return buffer.getvalue()
+    return fig

@@ -469,12 +469,12 @@ def aggregate_section(records: list[dict], cells: dict[str, dict[str, Cell]], re
     if estimates:
         figures["aggregates.png"] = (
             "Mean S.R. and IQM over training seeds and tasks",
-            aggregates.interval_chart(estimates),
+            _figure_png(aggregates.interval_chart(estimates)),
         )
     if pairs:
         figures["probability_of_improvement.png"] = (
             "Probability of improvement (training seeds)",
-            aggregates.improvement_chart(pairs),
+            _figure_png(aggregates.improvement_chart(pairs)),
         )
     checks = {
         "aggregates": estimates,
@@ -585,8 +585,12 @@ def html_table(header, rows) -> str:
 
 
 def _figure_png(fig) -> bytes:
+    """The figure as PNG bytes; the figure is closed."""
+    import matplotlib.pyplot as plt
+
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=110, bbox_inches="tight")
+    plt.close(fig)
     return buffer.getvalue()
 
 
@@ -616,9 +620,7 @@ def bar_chart(cells: dict[str, dict[str, Cell]]) -> bytes:
     for ax in list(axes.flat)[len(tasks) :]:
         ax.axis("off")
     fig.tight_layout()
-    png = _figure_png(fig)
-    plt.close(fig)
-    return png
+    return _figure_png(fig)
 
 
 def curve_chart(
@@ -649,9 +651,7 @@ def curve_chart(
     ax.set_title(title, fontsize=10)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    png = _figure_png(fig)
-    plt.close(fig)
-    return png
+    return _figure_png(fig)
 
 
 def perturbation_series(records: list[dict]) -> dict[str, dict[str, list[tuple[float, float]]]]:
