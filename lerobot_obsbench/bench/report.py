@@ -259,9 +259,14 @@ def beats_blind(records: list[dict], cells: dict[str, dict[str, Cell]]) -> dict[
     return out
 
 
+def _control_labels(labels, configs: dict[str, dict], spaces: tuple[str, ...], policy: str) -> list[str]:
+    """The column labels among `labels` whose space is one of `spaces` (a control) and policy type `policy`."""
+    return [m for m in labels if configs[m]["obs_space"] in spaces and configs[m]["policy"] == policy]
+
+
 def _controls(row: dict[str, Cell], configs: dict[str, dict], spaces: tuple[str, ...], policy: str) -> list[Cell]:
     """The cells of one task's row whose space is one of `spaces` (a control) and whose policy type is `policy`."""
-    return [c for m, c in row.items() if configs[m]["obs_space"] in spaces and configs[m]["policy"] == policy]
+    return [row[m] for m in _control_labels(row, configs, spaces, policy)]
 
 
 def control_brackets(records: list[dict], cells: dict[str, dict[str, Cell]]) -> dict[str, dict[str, dict]]:
@@ -438,13 +443,8 @@ def aggregate_section(records: list[dict], cells: dict[str, dict[str, Cell]], re
     configs = _label_configs(records)
     over_blind, over_reference = {}, {}  # label -> (other label, P(improvement) estimate)
     for label in sorted(scores):
-        config = configs[label]
-        if config["obs_space"] not in BLIND_SPACES:
-            blinds = [
-                m
-                for m in scores
-                if configs[m]["obs_space"] in BLIND_SPACES and configs[m]["policy"] == config["policy"]
-            ]
+        if configs[label]["obs_space"] not in BLIND_SPACES:
+            blinds = _control_labels(scores, configs, BLIND_SPACES, configs[label]["policy"])
             if blinds:
                 blind = max(blinds, key=lambda m: estimates[m]["mean_sr"][0])
                 over_blind[label] = (blind, aggregates.improvement_estimate(scores[label], scores[blind]))
@@ -459,11 +459,12 @@ def aggregate_section(records: list[dict], cells: dict[str, dict[str, Cell]], re
         e = estimates[label]
         cells_text = [str(e["seeds"]), aggregates.interval_text(e["mean_sr"]), aggregates.interval_text(e["iqm"])]
         for found in (over_blind, over_reference) if reference is not None else (over_blind,):
-            estimate = found.get(label, (None, None))[1]
-            one_seed = label in found and estimate is None
-            cells_text.append(
-                "— (one seed each)" if one_seed else aggregates.interval_text(estimate) if estimate else "—"
-            )
+            if label not in found:
+                cells_text.append("—")
+            elif found[label][1] is None:  # both columns rest on one training seed
+                cells_text.append("— (one seed each)")
+            else:
+                cells_text.append(aggregates.interval_text(found[label][1]))
         rows.append((label, [(c, None) for c in cells_text]))
     figures = {}
     if estimates:
