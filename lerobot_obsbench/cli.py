@@ -854,10 +854,18 @@ INTERRUPTED = {
     "run the same command to go on",
     "demos": "the recorded episodes are kept in --out; run the same command to go on",
     "import-rlbench": "the converted episodes are kept in --out; run the same command to go on",
+    "import-h5": "the replayed episodes are kept in --out; run the same command to go on",
     "eval": "no result was written (--out is written once every episode is done)",
     "record": "every saved episode is kept in --dataset.root; run the same command to go on",
     "rollout": "the episodes' videos are kept in --out; results.json is written once every episode is judged",
 }
+
+
+def interrupted(command: str) -> int:
+    """Ctrl-C: one line saying what was kept; the shell's exit code for a SIGINT."""
+    kept = INTERRUPTED.get(command, "nothing is left half-written; run the same command again")
+    print(f"\nobsbench {command}: interrupted; {kept}", file=sys.stderr)
+    return 130
 
 
 def hardware_command(name: str, argv: list[str]) -> int:
@@ -876,8 +884,7 @@ def hardware_command(name: str, argv: list[str]) -> int:
         print(f"obsbench {name}: error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"\nobsbench {name}: interrupted; {INTERRUPTED[name]}", file=sys.stderr)
-        return 130
+        return interrupted(name)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -933,9 +940,7 @@ def main(argv: list[str] | None = None) -> int:
         )
         return 2
     except KeyboardInterrupt:
-        kept = INTERRUPTED.get(args.command, "nothing is left half-written; run the same command again")
-        print(f"\nobsbench {args.command}: interrupted; {kept}", file=sys.stderr)
-        return 130  # the shell's code for a SIGINT
+        return interrupted(args.command)
 
 
 if __name__ == "__main__":

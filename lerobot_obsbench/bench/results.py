@@ -22,6 +22,8 @@ import shutil
 import sys
 from pathlib import Path
 
+from lerobot_obsbench.outputs import write_text_atomic
+
 KINDS = ("train", "eval")
 REQUIRED = {
     "train": ("run_id", "config", "method", "task", "checkpoint"),
@@ -187,7 +189,5 @@ def convert_v1(path: Path) -> Path:
         copy += 1
         backup = path.with_name(f"{path.name}.v1.{copy}")
     shutil.copy2(path, backup)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in converted))
-    os.replace(tmp, path)
+    write_text_atomic(path, "".join(json.dumps(r, sort_keys=True) + "\n" for r in converted))
     return backup

@@ -216,7 +216,7 @@ def _record_locked(spec, episodes, out, image_size, cameras, seed_start, max_att
 
     task = spec.name
     sidecar = out / SIDECAR
-    if sidecar.is_file() and (out / "meta" / "info.json").is_file():  # the same recording (_check_existing)
+    if sidecar.is_file() and (out / "meta" / "info.json").is_file():  # the same recording (prepare_dataset_out)
         print(f"{out}: {episodes} {task} demonstrations already recorded")
         return json.loads(sidecar.read_text())
     staging = out / STAGING
