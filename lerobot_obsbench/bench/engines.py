@@ -8,6 +8,9 @@ from __future__ import annotations
 import concurrent.futures as cf
 import multiprocessing
 import signal
+import threading
+
+from tqdm import tqdm
 
 from lerobot_obsbench.bench.units import die_with_parent
 
@@ -47,9 +50,12 @@ class LocalEngine:
 
 def _worker_start() -> None:
     """A pool worker dies with the driver and leaves Ctrl-C to it (the driver stops the grid in one line; a
-    worker interrupted too would print its own traceback)."""
+    worker interrupted too would print its own traceback). Its progress bars share a thread lock instead of
+    tqdm's default multiprocessing one: a worker killed on Ctrl-C cannot unlink that semaphore, and the
+    resource tracker would print a leaked-semaphore warning under the driver's one line."""
     die_with_parent()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    tqdm.set_lock(threading.RLock())
 
 
 class RayEngine:
