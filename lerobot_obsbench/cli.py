@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from lerobot_obsbench import __version__
+from lerobot_obsbench.outputs import OutputPathError, check_output_file, check_output_folder, write_text_atomic
 from lerobot_obsbench.schema import MIN_IMAGE_SIZE, OBS_SPACES, POLICY_TYPES, QUATERNION_MODES, SchemaError
 
 
@@ -167,7 +168,6 @@ def cmd_import_rlbench(args: argparse.Namespace) -> int:
 
 def cmd_eval_rlbench(args: argparse.Namespace) -> int:
     from lerobot_obsbench.envs.evaluate import write_result
-    from lerobot_obsbench.outputs import check_output_file
     from lerobot_obsbench.policies.loading import load_policy
     from lerobot_obsbench.rlbench.evaluate import CameraView, CheckpointPolicy, evaluate_rlbench, require_rlbench
     from lerobot_obsbench.rlbench.tasks import rlbench_task
@@ -191,7 +191,6 @@ def cmd_eval_rlbench(args: argparse.Namespace) -> int:
 def cmd_eval(args: argparse.Namespace) -> int:
     from lerobot_obsbench.envs.evaluate import evaluate, write_result
     from lerobot_obsbench.envs.perturbations import parse_perturbation
-    from lerobot_obsbench.outputs import check_output_file
 
     parse_perturbation(args.perturbation)  # a typo fails before the policy and the simulator load
     if args.out is not None:
@@ -265,6 +264,10 @@ def cmd_report(args: argparse.Namespace) -> int:
         raise SystemExit("obsbench report: give a results file (results.jsonl) and/or --table FILE.csv")
     if args.results is not None and not args.results.is_file():
         raise ReportError(f"results file {args.results} not found (`obsbench run` writes OUT/results.jsonl)")
+    out = args.out or (args.results.parent / "report" if args.results else Path("report"))
+    check_output_folder(out, "--out")
+    if args.json:
+        check_output_file(args.json, "--json", overwrite=True)  # a summary is regenerated, like the report
     records = read_results(args.results) if args.results else []
     if args.results and not records:
         print(f"warning: no readable records in {args.results}", file=sys.stderr)
@@ -277,7 +280,6 @@ def cmd_report(args: argparse.Namespace) -> int:
         checkpoint=args.checkpoint,
         reference=args.reference,
     )
-    out = args.out or (args.results.parent / "report" if args.results else Path("report"))
     paths = write_report(report, out, title=args.title)
     heading, (header, rows) = report["sections"][0]
     print(f"{heading}\n{markdown_table(header, rows)}")
@@ -287,8 +289,7 @@ def cmd_report(args: argparse.Namespace) -> int:
         for method, s in sorted(methods.items(), key=lambda kv: kv[1]["mean_rank"]):
             print(f"{source:9s} {method:45s} Mean S.R. {s['mean_sr']:.2f}  Mean Rank {s['mean_rank']:.2f}")
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(summary_json(report), indent=2) + "\n")
+        write_text_atomic(args.json, json.dumps(summary_json(report), indent=2) + "\n")
     print(f"report: {paths['markdown']}, {paths['html']}" + (f"; summary: {args.json}" if args.json else ""))
     return 0
 
@@ -392,7 +393,6 @@ def cmd_calibrate_cameras(args: argparse.Namespace) -> int:
     import numpy as np
     from scipy.spatial.transform import Rotation
 
-    from lerobot_obsbench.outputs import OutputPathError, check_output_file
     from lerobot_obsbench.robots.extrinsics import BoardSpec, calibrate, save_extrinsics
     from lerobot_obsbench.robots.realsense.config_realsense_rgbd import RealSenseRGBDCameraConfig
     from lerobot_obsbench.robots.realsense.realsense_rgbd import RealSenseRGBDCamera
@@ -412,6 +412,8 @@ def cmd_calibrate_cameras(args: argparse.Namespace) -> int:
         return 0
     if not args.serial and not args.playback:
         raise SystemExit("obsbench calibrate-cameras: give --serial (see `obsbench find-cameras`) or --playback FILE")
+    if args.out:  # before the camera starts
+        check_output_folder(Path(args.out), "--out")
     board_to_world = np.eye(4)
     x, y, z, roll, pitch, yaw = args.board_pose
     board_to_world[:3, :3] = Rotation.from_euler("xyz", [roll, pitch, yaw], degrees=True).as_matrix()
@@ -458,6 +460,8 @@ def cmd_view(args: argparse.Namespace) -> int:
     from lerobot_obsbench.datasets.view import dataset_frame, live_frame, log_frame
     from lerobot_obsbench.presets import preset_overrides
 
+    if args.out:  # before the dataset or the cameras are opened
+        check_output_file(args.out, "--out", overwrite=True)
     workspace = args.workspace
     if workspace is None and args.preset:
         workspace = preset_overrides(args.preset, POLICY_TYPES[0], "pointcloud").get("workspace")
@@ -903,7 +907,6 @@ def main(argv: list[str] | None = None) -> int:
     from lerobot_obsbench.envs.perturbations import PerturbationError
     from lerobot_obsbench.envs.task import TaskError
     from lerobot_obsbench.locks import OutputLockedError
-    from lerobot_obsbench.outputs import OutputPathError
     from lerobot_obsbench.rlbench.evaluate import RLBenchUnavailable
     from lerobot_obsbench.rlbench.format import RLBenchFormatError
     from lerobot_obsbench.rlbench.tasks import RLBenchTaskError

@@ -24,7 +24,20 @@ def check_output_file(path: Path, flag: str, overwrite: bool = False) -> None:
         raise OutputPathError(f"{flag} {path} is a directory; give a file path, e.g. {flag} {path / 'result.json'}")
     if path.exists() and not overwrite:
         raise OutputPathError(f"{flag} {path} already exists; add --overwrite to replace it, or give another path")
-    folder = path.parent
+    _check_creatable(path.parent, path, flag)
+
+
+def check_output_folder(path: Path, flag: str) -> None:
+    """Refuse, before any work, an output folder `path` (given by `flag`) that is a file or cannot be created or
+    written. What the command writes in it replaces files of the same name (a regenerated report, a camera's
+    new calibration)."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise OutputPathError(f"{flag} {path} is a file; give a folder")
+    _check_creatable(path, path, flag)
+
+
+def _check_creatable(folder: Path, path: Path, flag: str) -> None:
     while not folder.exists():  # the nearest existing folder decides whether the rest can be created
         folder = folder.parent
     if not folder.is_dir():

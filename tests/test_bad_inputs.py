@@ -115,6 +115,23 @@ def print_board_unwritable_name(root: Path) -> list[str]:
     return ["calibrate-cameras", "--print-board", str(root / "boards" / "board.unknown")]
 
 
+def calibrate_out_is_a_file(root: Path) -> list[str]:
+    """Refused before the camera (a recording that does not exist here) is opened."""
+    (root / "extrinsics").write_text("a file, not a folder\n")
+    return ["calibrate-cameras", "--playback", str(root / "board.bag"), "--out", str(root / "extrinsics")]
+
+
+def view_out_is_a_directory(root: Path) -> list[str]:
+    """Refused before the dataset (which does not exist here) is read."""
+    (root / "views").mkdir()
+    return ["view", "--root", str(root / "dataset"), "--out", str(root / "views")]
+
+
+def report_out_is_a_file(root: Path) -> list[str]:
+    (root / "report").write_text("my notes\n")
+    return _results(root, TRAIN, _eval_line(episodes=50, successes=3))
+
+
 def _grid(root: Path, text: str) -> list[str]:
     (root / "g.yaml").write_text(text)
     return ["run", str(root / "g.yaml"), "--out", str(root / "out"), "--dry-run"]
@@ -218,6 +235,9 @@ ROWS = [
     (eval_out_exists, ["--out", "already exists; add --overwrite"]),
     (eval_out_under_a_file, ["notes is a file, so the folder cannot be created"]),
     (print_board_unwritable_name, ["--print-board", "OpenCV could not write it", ".png"]),
+    (calibrate_out_is_a_file, ["--out", "extrinsics is a file; give a folder"]),
+    (view_out_is_a_directory, ["--out", "views is a directory; give a file path"]),
+    (report_out_is_a_file, ["--out", "report is a file; give a folder"]),
     (grid_with_a_duplicated_key, ["'steps' is given twice (lines 3 and 4)"]),
     (grid_with_a_duplicated_seed, ["seeds lists 1 more than once"]),
     (grid_below_the_smallest_frame, ["image_size must be a whole number >= 32; got 16"]),

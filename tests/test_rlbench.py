@@ -60,6 +60,17 @@ def test_rlbench_camera_becomes_opencv():
     np.testing.assert_allclose(pixels_cv, pixels_rl, atol=1e-9)
 
 
+@pytest.mark.parametrize("near, far", [(0.5, 0.5), (-0.1, 4.5), (0.01, 100.0), (0.01, float("nan"))])
+def test_depth_planes_that_would_rescale_every_point_are_refused(near, far):
+    misc = {"front_camera_extrinsics": np.eye(4), "front_camera_intrinsics": np.diag([-1.0, -1.0, 1.0])}
+    misc.update(front_camera_near=near, front_camera_far=far)
+    with pytest.raises(rlformat.RLBenchFormatError, match=r"front_camera_near = .* and front_camera_far = .* in the"):
+        rlformat.camera_views(np.zeros((4, 4, 3), np.uint8), np.full((4, 4), 0.5), misc, "front")
+    misc.update(front_camera_near=0.01, front_camera_far=4.5)
+    views = rlformat.camera_views(np.zeros((4, 4, 3), np.uint8), np.full((4, 4), 0.5), misc, "front")
+    assert views["depth"].max() == 2255  # 0.01 + 0.5 * 4.49 m
+
+
 @pytest.mark.parametrize("mode", ["pcm_compat", "xyzw"])
 def test_rotation_6d_and_position_scaling_round_trip(mode):
     rng = np.random.default_rng(2)

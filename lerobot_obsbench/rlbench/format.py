@@ -39,6 +39,7 @@ VARIATION_PATTERN = re.compile(r"variation(\d+)$")
 
 # PIL modes of RLBench's own depth PNGs (its generator writes the packed depth as RGB; RGBA is read the same way)
 DEPTH_PNG_MODES = ("RGB", "RGBA")
+MAX_FAR_M = np.iinfo(np.uint16).max / 1000  # the farthest depth the schema's uint16 millimetres hold
 
 
 class RLBenchFormatError(ValueError):
@@ -323,6 +324,12 @@ def camera_views(rgb: np.ndarray, normalised_depth: np.ndarray, misc: dict, came
         raise RLBenchFormatError(
             f"no {error.args[0]} in the observation's misc (RLBench records it with the camera enabled)"
         ) from error
+    if not 0 <= near < far <= MAX_FAR_M:  # the depth's scale: a wrong plane rescales every point silently
+        raise RLBenchFormatError(
+            f"{camera}_camera_near = {near:g} m and {camera}_camera_far = {far:g} m in the observation's misc: "
+            f"expected 0 <= near < far <= {MAX_FAR_M:g} (RLBench's front camera: 0.01 and 4.5); the episode's "
+            "misc is damaged"
+        )
     return {"rgb": rgb, "depth": depth_millimetres(normalised_depth, near, far), "K": K, "cam2world": cam2world}
 
 
