@@ -168,20 +168,24 @@ def cmd_import_rlbench(args: argparse.Namespace) -> int:
 
 def cmd_eval_rlbench(args: argparse.Namespace) -> int:
     from lerobot_obsbench.envs.evaluate import write_result
-    from lerobot_obsbench.policies.loading import load_policy
-    from lerobot_obsbench.rlbench.evaluate import CameraView, CheckpointPolicy, evaluate_rlbench, require_rlbench
+    from lerobot_obsbench.rlbench.evaluate import CameraView, evaluate_checkpoint
     from lerobot_obsbench.rlbench.tasks import rlbench_task
 
     task = rlbench_task(args.task)
     view = CameraView(*args.camera_view) if args.camera_view else None
     if args.out is not None:
         check_output_file(args.out, "--out", args.overwrite)  # before the episodes it would hold
-    require_rlbench()  # before anything loads
-    policy, pre, post = load_policy(args.policy_path, args.device)
-    runner = CheckpointPolicy(
-        policy, pre, post, task, policy.config.cameras, args.quaternion, _text_encoder(args.clip_weights)
+    result = evaluate_checkpoint(
+        args.policy_path,
+        task,
+        args.data,
+        args.episodes,
+        args.max_steps,
+        camera_view=view,
+        clip_weights=args.clip_weights,
+        quaternion=args.quaternion,
+        device=args.device,
     )
-    result = evaluate_rlbench(runner, task, args.data, args.episodes, args.max_steps, camera_view=view)
     write_result(result, args.out)
     lo, hi = result["ci95"]
     print(f"{task.name}: success {result['successes']}/{result['episodes']} (95% CI {lo:.1%}-{hi:.1%})")
@@ -220,10 +224,15 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from lerobot_obsbench.bench.grid import load_grid
+    from lerobot_obsbench.bench.grid import GridError, load_grid
     from lerobot_obsbench.bench.runner import run_grid
 
     grid = load_grid(args.grid)
+    for flag, value in (("--rlbench-data", args.rlbench_data), ("--clip-weights", args.clip_weights)):
+        if value is not None and not grid.rlbench_data:
+            raise GridError(f"{flag} applies to grids of RLBench tasks; {grid.name} has none")
+    grid.rlbench_data = args.rlbench_data or grid.rlbench_data
+    grid.clip_weights = args.clip_weights or grid.clip_weights
     out = args.out or Path("outputs") / "bench" / grid.name
     loader_workers = args.loader_workers if args.loader_workers is not None else (0 if args.device == "cpu" else 4)
     failures = run_grid(
@@ -710,6 +719,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="DataLoader workers per training run (default: 0 on cpu, 4 on a GPU)",
     )
     p.add_argument("--dry-run", action="store_true", help="print the runs still to do and a rough cost; run nothing")
+    p.add_argument(
+        "--rlbench-data", default=None, help="RLBench grids: PerAct's data (DIR/train|val|test/<task>), for the grid's"
+    )
+    p.add_argument("--clip-weights", default=None, help="RLBench grids: CLIP ViT-B/16 weights file, for the grid's")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser(

@@ -8,6 +8,7 @@ so an interruption never leaves half a file where a whole one was.
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -44,6 +45,11 @@ def _check_creatable(folder: Path, path: Path, flag: str) -> None:
         raise OutputPathError(f"{flag} {path}: {folder} is a file, so the folder cannot be created")
     if not os.access(folder, os.W_OK):
         raise OutputPathError(f"{flag} {path}: the folder {folder} is not writable; give another path")
+
+
+def write_json_atomic(path: Path, data) -> None:
+    """`data` as JSON, written whole (a reader polling the file never sees half of it)."""
+    write_text_atomic(path, json.dumps(data))
 
 
 def write_text_atomic(path: Path, text: str) -> None:

@@ -7,6 +7,16 @@ import math
 import numpy as np
 
 
+def per_seed(seeds: list[int], successes: list[bool], lengths: list[int]) -> dict:
+    """Compact per-episode outcomes for results files: the seeds (or episode numbers), success as a string ('1'
+    success, '.' failure) and the episode lengths, so two evaluations of one checkpoint compare seed by seed."""
+    return {
+        "seeds": list(seeds),
+        "success": "".join("1" if s else "." for s in successes),
+        "length": list(lengths),
+    }
+
+
 def wilson_interval(successes: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
     """95% Wilson score interval of a success rate (well behaved at 0 and n successes, unlike the normal one)."""
     if n <= 0:

@@ -207,7 +207,7 @@ def test_report_files(tmp_path):
     assert "**0.80 [" in md and "<u>0.20 [" in md  # T1: pointcloud best (bold), rgb second (underlined)
     assert "| Mean S.R. | **0.70** | <u>0.40</u> |" in md
     assert "| Mean Rank | **1.00** | <u>1.50</u> |" in md  # T2 tie: both rank 1
-    assert "Side by side on the shared tasks (T1)" in md and "ResNet50 (paper)" in md
+    assert "Side by side on the shared rows (T1)" in md and "ResNet50 (paper)" in md
     page = paths["html"].read_text()
     assert page.count("data:image/png;base64,") == 4  # bars, aggregates, light curve, sample efficiency
     assert "<b>0.80" in page
@@ -378,3 +378,29 @@ def test_controls_bracket_the_seeing_spaces_and_each_run_shows_its_outcomes_and_
         )
     )
     assert flat["checks"]["controls"]["T"]["obs_act/pointcloud/e"]["gain_fraction"] is None
+
+
+def test_rlbench_rows_and_demonstration_counts_meet_the_papers_tables():
+    from lerobot_obsbench.bench.report import resolve_table
+
+    records = [
+        record("a", "rlbench/open_drawer", "pointcloud", 3, episodes=25, demos=100),
+        record("b", "rlbench/sweep_to_dustpan_of_size", "pointcloud", 5, episodes=25, demos=100),
+        record("c", "rlbench/open_drawer", "pointcloud", 1, episodes=25, demos=10),
+        record("d", "rlbench/sweep_to_dustpan_of_size", "pointcloud", 0, episodes=25, demos=10),
+    ]
+    report = build_report(stored(*records), read_published(resolve_table("table2_dp")), published_name="paper")
+    # the paper's rows found from the task ids (Table 2 shortens some RLBench names)
+    heading, (header, rows) = report["sections"][-1]
+    assert heading == "Side by side on the shared rows (open drawer, sweep to)"
+    cells = {name: {h: text for h, (text, _) in zip(header[1:], row, strict=True)} for name, row in rows}
+    assert cells["open drawer"]["PCD-PointNet (paper)"].startswith("0.12")
+    assert cells["sweep to"]["PCD-SpUNet (paper)"].startswith("0.08")
+    assert cells["open drawer"]["obs_act/pointcloud/e"].startswith("0.12")  # 3/25 at 100 demonstrations
+    report = build_report(stored(*records), read_published(resolve_table("table5_sample_efficiency")))
+    heading, (header, rows) = report["sections"][-1]
+    assert heading == "Side by side on the shared rows (10 demos, 100 demos)"
+    cells = {name: {h: text for h, (text, _) in zip(header[1:], row, strict=True)} for name, row in rows}
+    assert cells["10 demos"]["obs_act/pointcloud/e"].startswith("0.02")  # (1/25 + 0/25) / 2
+    assert cells["100 demos"]["obs_act/pointcloud/e"].startswith("0.16")  # (3/25 + 5/25) / 2
+    assert cells["100 demos"]["PointNet (published)"].startswith("0.32")

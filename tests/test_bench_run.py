@@ -47,10 +47,10 @@ policy_overrides: {workspace: [-1, 1, -1, 1, 0.005, 1]}
 TIMING = ("timings", "wall_s", "finished_at", "checkpoint", "checkpoints", "versions", "trained_in")
 
 
-def obsbench(*args, **kwargs) -> subprocess.Popen:
+def obsbench(*args, env: dict | None = None, **kwargs) -> subprocess.Popen:
     return subprocess.Popen(
         [str(BIN / "obsbench"), *args],
-        env=ENV,
+        env=env or ENV,
         stdin=subprocess.DEVNULL,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
@@ -76,8 +76,8 @@ def kill(proc: subprocess.Popen) -> None:
     proc.wait()
 
 
-def finish(*args: str) -> str:
-    proc = obsbench(*args)
+def finish(*args: str, env: dict | None = None) -> str:
+    proc = obsbench(*args, env=env)
     log, _ = proc.communicate(timeout=1800)
     assert proc.returncode == 0, log
     return log

@@ -341,7 +341,9 @@ def test_cli_refuses_unknown_tasks_and_a_missing_simulator(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("space", ["pointcloud", "rgb"])
-def test_lerobot_train_on_the_imported_dataset_with_the_language_goal(imported, tmp_path, space):
+def test_lerobot_train_on_the_imported_dataset_with_the_language_goal(
+    imported, tmp_path, space, tiny_clip, monkeypatch
+):
     from lerobot_obsbench.presets import preset_args
 
     out = tmp_path / "train"
@@ -366,21 +368,45 @@ def test_lerobot_train_on_the_imported_dataset_with_the_language_goal(imported, 
     config = json.loads((out / "checkpoints/last/pretrained_model/config.json").read_text())
     assert config["input_features"]["observation.environment_state"]["shape"] == [512]
     assert config["output_features"]["action"]["shape"] == [11]
+    _evaluate_with_the_language_goal(out / "checkpoints/last/pretrained_model", imported, tiny_clip, monkeypatch)
+
+
+def _evaluate_with_the_language_goal(checkpoint: Path, imported, tiny_clip, monkeypatch) -> None:
+    """The checkpoint through RLBench's protocol, against the stand-in that replays the recorded episodes
+    (tests/fake_rlbench): the goal is the description's CLIP feature, as the importer computed it."""
+    from lerobot_obsbench.rlbench import evaluate as rlevaluate
+    from lerobot_obsbench.rlbench import text
+
+    before = set(sys.modules)
+    monkeypatch.syspath_prepend(str(Path(__file__).parent / "fake_rlbench"))
+    monkeypatch.setenv("COPPELIASIM_ROOT", str(checkpoint))
+    monkeypatch.setenv("DISPLAY", ":99")
+    encoded = []
+    monkeypatch.setattr(text, "load_clip_text_encoder", lambda weights: tiny_clip)
+    monkeypatch.setattr(
+        tiny_clip, "encode", lambda texts, encode=tiny_clip.encode: encoded.extend(texts) or encode(texts)
+    )
+    try:
+        result = rlevaluate.evaluate_checkpoint(
+            checkpoint,
+            rlbench_task("open_drawer"),
+            imported["root"] / "train",
+            episodes=2,
+            max_steps=2,
+            clip_weights="ViT-B-16.pt",
+        )
+    finally:
+        for name in set(sys.modules) - before:
+            if name.split(".")[0] in ("rlbench", "pyrep"):
+                del sys.modules[name]
+    assert result["episodes"] == 2 and result["per_seed"]["seeds"] == [0, 1]
+    assert all(1 <= steps <= 2 for steps in result["per_seed"]["length"])
+    # each episode's first variation description, in the order of the split's episodes
+    descriptions = [e["description"] for e in imported["open_drawer"]["info"]["episodes"][:2]]
+    assert encoded == descriptions
 
 
 # ---- evaluation protocol against a fake rlbench ----------------------------------------------------------------
-
-
-class IKError(Exception):
-    pass
-
-
-class ConfigurationPathError(Exception):
-    pass
-
-
-class InvalidActionError(Exception):
-    pass
 
 
 class FakeTaskEnv:
@@ -409,6 +435,9 @@ class FakeTaskEnv:
         return [f"variation {demo.variation_number}"], "obs0"
 
     def step(self, action):
+        from pyrep.errors import ConfigurationPathError, IKError
+        from rlbench.backend.exceptions import InvalidActionError
+
         if self.steps == 0 and self.attempts < self.step0_failures:
             self.attempts += 1
             raise (IKError, ConfigurationPathError, InvalidActionError)[self.attempts % 3]("no path")
@@ -420,7 +449,8 @@ class FakeTaskEnv:
 
 @pytest.fixture
 def fake_rlbench(monkeypatch, tmp_path):
-    """`rlbench` and `pyrep` modules with the names the adapter imports, plus the environment it checks."""
+    """The stand-in `rlbench` and `pyrep` packages (tests/fake_rlbench) with a scripted environment recording the
+    protocol's calls, plus the environment variables `require_rlbench` checks."""
     log = []
     state = {"success_step": 3, "step0_failures": 0}
 
@@ -440,32 +470,17 @@ def fake_rlbench(monkeypatch, tmp_path):
         def shutdown(self):
             log.append(("shutdown",))
 
-    def module(name, **attrs):
-        m = types.ModuleType(name)
-        m.__dict__.update(attrs)
-        monkeypatch.setitem(sys.modules, name, m)
+    before = set(sys.modules)
+    monkeypatch.syspath_prepend(str(Path(__file__).parent / "fake_rlbench"))
+    import rlbench.environment
 
-    module("pyrep")
-    module("pyrep.backend")
-    module("pyrep.errors", IKError=IKError, ConfigurationPathError=ConfigurationPathError)
-    module("rlbench")
-    module("rlbench.environment", Environment=Environment)
-    module("rlbench.action_modes")
-    module(
-        "rlbench.action_modes.action_mode",
-        MoveArmThenGripper=type("MoveArmThenGripper", (), {"__init__": lambda s, a, g: None}),
-    )
-    module(
-        "rlbench.action_modes.arm_action_modes", EndEffectorPoseViaPlanning=type("EndEffectorPoseViaPlanning", (), {})
-    )
-    module("rlbench.action_modes.gripper_action_modes", Discrete=type("Discrete", (), {}))
-    module("rlbench.observation_config", ObservationConfig=type("ObservationConfig", (), {}))
-    module("rlbench.backend")
-    module("rlbench.backend.exceptions", InvalidActionError=InvalidActionError)
-    module("rlbench.backend.utils", task_file_to_task_class=lambda name: f"class:{name}")
+    monkeypatch.setattr(rlbench.environment, "Environment", Environment)
     monkeypatch.setenv("COPPELIASIM_ROOT", str(tmp_path))
     monkeypatch.setenv("DISPLAY", ":99")
-    return log, state
+    yield log, state
+    for name in set(sys.modules) - before:  # later tests see no rlbench, as on a machine without it
+        if name.split(".")[0] in ("rlbench", "pyrep"):
+            del sys.modules[name]
 
 
 class ScriptedPolicy:

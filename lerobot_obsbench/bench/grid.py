@@ -35,6 +35,12 @@ from lerobot_obsbench.envs.maniskill import DEFAULT_CONTROL_MODE
 from lerobot_obsbench.envs.perturbations import parse_perturbation
 from lerobot_obsbench.envs.task import TASKS, task_spec
 from lerobot_obsbench.presets import PRESETS, preset_encoder, preset_overrides
+from lerobot_obsbench.rlbench.evaluate import MAX_STEPS as RLBENCH_MAX_STEPS
+from lerobot_obsbench.rlbench.evaluate import camera_view_for
+from lerobot_obsbench.rlbench.tasks import CAMERAS as RLBENCH_CAMERAS
+from lerobot_obsbench.rlbench.tasks import IMAGE_SIZE as RLBENCH_IMAGE_SIZE
+from lerobot_obsbench.rlbench.tasks import WORKSPACE as RLBENCH_WORKSPACE
+from lerobot_obsbench.rlbench.tasks import RLBenchTaskError, grid_task_name, rlbench_task
 from lerobot_obsbench.schema import CONTROL_SPACES, MIN_IMAGE_SIZE, OBS_SPACES, POINT_SPACES, POLICY_TYPES
 
 BUDGET_UNITS = {
@@ -43,6 +49,10 @@ BUDGET_UNITS = {
     "demo_epochs": "the paper's epochs: one randomly sampled frame per demonstration per epoch",
     "frame_epochs": "passes over every frame of every demonstration",
 }
+
+
+RLBENCH_CONTROL_MODE = "ee_pose_planning"  # RLBench's EndEffectorPoseViaPlanning, absolute world-frame poses
+CLIP_GOAL = "clip_vit_b16"  # the language goal's encoder, as RLBench runs record it
 
 
 class GridError(ValueError):
@@ -73,11 +83,15 @@ class RunSpec:
     cameras: tuple[str, ...]
     control_mode: str
     policy_overrides: tuple[tuple[str, object], ...] = ()
+    # RLBench: the text encoder of the language goal the demonstrations carry ("" = none)
+    language_goal: str = ""
 
     def config(self) -> dict:
         data = asdict(self)
         data["cameras"] = list(self.cameras)
         data["policy_overrides"] = dict(self.policy_overrides)
+        if not self.language_goal:  # a field added later: left out at its default, so older runs keep their ids
+            del data["language_goal"]
         return data
 
     @property
@@ -92,7 +106,13 @@ class RunSpec:
     @property
     def demo_key(self) -> str:
         """Runs sharing this key train on (a prefix of) the same demonstration dataset."""
-        return f"{self.task}-{self.image_size}px-{'+'.join(self.cameras)}-{self.control_mode}"
+        key = f"{self.task}-{self.image_size}px-{'+'.join(self.cameras)}-{self.control_mode}"
+        return key.replace("/", "_") + (f"-{self.language_goal}" if self.language_goal else "")
+
+    @property
+    def rlbench_task(self) -> str | None:
+        """The RLBench task this run trains on, None for a ManiSkill task."""
+        return grid_task_name(self.task)
 
     def steps(self, demo_frames: int | None = None) -> int:
         """Optimizer steps of the budget; `demo_frames` (frames in the run's demonstrations) is needed for
@@ -190,6 +210,11 @@ class Grid:
     variants: list[dict[str, object]] = field(default_factory=lambda: [{}])  # extra --policy.* sets, one axis
     # evaluate the checkpoints another grid trained (its output directory) instead of training
     checkpoints_from: str | None = None
+    # RLBench tasks (`rlbench/<task>`): PerAct-format data, DIR/train/<task> imported as the demonstrations,
+    # DIR/test/<task> (and DIR/val/<task> for validation_episodes) replayed by the evaluation protocol
+    rlbench_data: str | None = None
+    # RLBench: CLIP ViT-B/16 weights (a local file) for the language goal; None: no language goal
+    clip_weights: str | None = None
     description: str = ""
 
     def per_policy(self, name: str, policy: str):
@@ -213,6 +238,7 @@ class Grid:
         ):
             unit, budget = self.budget(policy)
             overrides = {**task_overrides(task, space), **self.policy_overrides, **variant}
+            rlbench = grid_task_name(task) is not None
             for encoder in self.encoders[space]:
                 runs.append(
                     RunSpec(
@@ -229,14 +255,15 @@ class Grid:
                         budget=budget,
                         image_size=self.image_size,
                         cameras=tuple(self.cameras),
-                        control_mode=self.control_mode,
+                        control_mode=RLBENCH_CONTROL_MODE if rlbench else self.control_mode,
                         policy_overrides=tuple(sorted(overrides.items())),
+                        language_goal=CLIP_GOAL if rlbench and self.clip_weights else "",
                     )
                 )
         return runs
 
     def max_steps(self, run: RunSpec) -> int:
-        return int(self.episode_length or task_spec(run.task).max_steps)
+        return int(self.episode_length or (RLBENCH_MAX_STEPS if run.rlbench_task else task_spec(run.task).max_steps))
 
     def test_checkpoints(self) -> tuple[str, ...]:
         return ("last", "best") if self.validation_episodes else ("last",)
@@ -265,8 +292,8 @@ class Grid:
 
 
 def task_overrides(task: str, obs_space: str) -> dict[str, object]:
-    """`--policy.*` fields a task sets for a space: its point-cloud crop box (`Task.workspace`)."""
-    workspace = task_spec(task).workspace
+    """`--policy.*` fields a task sets for a space: its point-cloud crop box (`Task.workspace`; RLBench's scene)."""
+    workspace = RLBENCH_WORKSPACE if grid_task_name(task) else task_spec(task).workspace
     return {"workspace": list(workspace)} if workspace is not None and obs_space in POINT_SPACES else {}
 
 
@@ -364,7 +391,7 @@ def _check_values(values: dict, name: str) -> None:
         value = values.get(key, [])
         if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
             raise GridError(f"{name}: {key} is a list of names, e.g. [base_camera]; got {value!r}")
-    for key in ("name", "description", "preset", "control_mode", "checkpoints_from"):
+    for key in ("name", "description", "preset", "control_mode", "checkpoints_from", "rlbench_data", "clip_weights"):
         if key in values and values[key] is not None and not isinstance(values[key], str):
             raise GridError(f"{name}: {key} is text; got {values[key]!r}")
     for key in ("tasks", "obs_spaces", "policies", *NUMERIC_FIELDS, *TEXT_LIST_FIELDS):
@@ -393,9 +420,19 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
         raise GridError(f"{name}: unknown grid fields {unknown}; valid fields: {', '.join(sorted(GRID_FIELDS))}")
     values = dict(data)
     values.setdefault("name", name)
-    tasks = _choose(_as_list(values.get("tasks"), "tasks"), list(TASKS), "tasks")
-    for task in tasks:
-        task_spec(task)
+    tasks = _as_list(values.get("tasks"), "tasks")
+    rlbench = [t for t in tasks if isinstance(t, str) and grid_task_name(t) is not None]
+    if rlbench:
+        _check_rlbench(values, tasks, rlbench, name)
+    else:
+        _choose(tasks, list(TASKS), "tasks")
+        for task in tasks:
+            task_spec(task)
+        given = [k for k in ("rlbench_data", "clip_weights") if values.get(k) is not None]
+        if given:
+            raise GridError(
+                f"{name}: {', '.join(given)} only apply to RLBench tasks (rlbench/<task>); the grid has none"
+            )
     spaces = _choose(_as_list(values.get("obs_spaces"), "obs_spaces"), list(OBS_SPACES), "obs_spaces")
     policies = _choose(_as_list(values.get("policies", ["obs_act"]), "policies"), list(POLICY_TYPES), "policies")
     preset = values.get("preset", "cpu")
@@ -430,6 +467,12 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
             raise GridError(f"{name}: {err}") from None
     if len(set(grid.perturbations)) != len(grid.perturbations):
         raise GridError(f"{name}: perturbations are listed twice: {grid.perturbations}")
+    if rlbench:
+        for text in grid.perturbations:
+            try:
+                camera_view_for(text)
+            except ValueError as err:
+                raise GridError(f"{name}: {err}") from None
     if grid.control_mode != DEFAULT_CONTROL_MODE:
         raise GridError(
             f"{name}: the scripted experts record demos with control_mode {DEFAULT_CONTROL_MODE}; got "
@@ -439,6 +482,42 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
         raise GridError(f"{name}: variants is a list of mappings of --policy.* fields, e.g. [{{}}, {{sampling: pre}}]")
     check_policy_configs(grid, name)
     return grid
+
+
+def _check_rlbench(values: dict, tasks: list, rlbench: list[str], name: str) -> None:
+    """An RLBench grid: every task an RLBench task the importer knows, its data folder named, its cameras
+    RLBench's, and no ManiSkill-only setting given (each would otherwise be ignored)."""
+    others = [t for t in tasks if t not in rlbench]
+    if others:
+        raise GridError(
+            f"{name}: RLBench and ManiSkill tasks in one grid ({rlbench[0]} and {others[0]}); they differ in cameras, "
+            "image size and episode budget: put each simulator's tasks in a grid of its own"
+        )
+    for task in rlbench:
+        try:
+            rlbench_task(grid_task_name(task))
+        except RLBenchTaskError as err:
+            raise GridError(f"{name}: {err}") from None
+    if not values.get("rlbench_data"):
+        raise GridError(
+            f"{name}: RLBench tasks need `rlbench_data: DIR`, PerAct's pre-generated data (DIR/train/<task> and "
+            "DIR/test/<task>, plus DIR/val/<task> for validation_episodes)"
+        )
+    values.setdefault("cameras", ["front"])  # the paper's RLBench camera
+    bad = [c for c in values["cameras"] if c not in RLBENCH_CAMERAS] if isinstance(values["cameras"], list) else []
+    if bad:
+        raise GridError(f"{name}: cameras {bad} are not RLBench's; choose from {', '.join(RLBENCH_CAMERAS)}")
+    if values.get("image_size", RLBENCH_IMAGE_SIZE) != RLBENCH_IMAGE_SIZE:
+        raise GridError(
+            f"{name}: image_size {values['image_size']!r}: RLBench grids train on PerAct's data as rendered, "
+            f"{RLBENCH_IMAGE_SIZE} x {RLBENCH_IMAGE_SIZE}; leave image_size out"
+        )
+    for key in ("control_mode", "held_out_demos"):
+        if values.get(key):
+            raise GridError(
+                f"{name}: {key} does not apply to RLBench tasks (they act by end-effector pose planning, and the "
+                "held-out diagnostics replay ManiSkill demonstrations); leave it out"
+            )
 
 
 def check_policy_configs(grid: Grid, name: str) -> None:

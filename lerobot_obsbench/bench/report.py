@@ -33,6 +33,7 @@ from pathlib import Path
 
 from lerobot_obsbench.bench.package_data import path_or_shipped, shipped
 from lerobot_obsbench.envs.perturbations import NOMINAL_VALUE, parse_perturbation
+from lerobot_obsbench.rlbench.tasks import PAPER_ROWS, grid_task_name
 from lerobot_obsbench.schema import BLIND_SPACES, CONTROL_SPACES, ORACLE_SPACES
 from lerobot_obsbench.stats import seeds_and_episodes_interval, wilson_interval
 
@@ -672,6 +673,25 @@ def perturbation_series(records: list[dict]) -> dict[str, dict[str, list[tuple[f
     return curves
 
 
+def paper_row(task: str) -> str:
+    """The row name the paper's tables give a task: RLBench's as Table 2 prints them, ManiSkill's without the
+    version suffix (PickCube-v1 -> PickCube)."""
+    name = grid_task_name(task)
+    if name is not None:
+        return PAPER_ROWS.get(name, name.replace("_", " "))
+    return task.removesuffix("-v1")
+
+
+def demo_counts(records: list[dict]) -> list[int]:
+    """The demonstration counts of a sample-efficiency grid (none when every run trains on the same number)."""
+    counts = sorted({r["config"]["demos"] for r in records})
+    return counts if len(counts) > 1 else []
+
+
+def series_at(series: dict[str, list[tuple[float, float]]], x: float) -> dict[str, float]:
+    return {m: y for m, points in series.items() for px, y in points if px == x}
+
+
 def demo_series(records: list[dict]) -> dict[str, list[tuple[float, float]]]:
     counts = sorted({r["config"]["demos"] for r in records})
     series = defaultdict(list)
@@ -777,7 +797,7 @@ def build_report(
                 f"Zero-shot {kind}",
                 curve_chart(series, kind, f"Zero-shot generalization: {kind}"),
             )
-        if len({r["config"]["demos"] for r in records}) > 1:
+        if demo_counts(records):
             figures["sample_efficiency.png"] = (
                 "Sample efficiency",
                 curve_chart(demo_series(records), "demonstrations", "Sample efficiency", log_x=True),
@@ -786,12 +806,16 @@ def build_report(
         sections.append((f"Published table ({published_name})", table_rows(published)))
         summary["published"] = summarize(published)
         if records:
-            shared = [t for t in table if t in published]
+            ours = {paper_row(t): row for t, row in table.items()}
+            # a table of demonstration counts (Table 5): the Mean S.R. over tasks per count, as the table gives it
+            by_demos = demo_series(records)
+            ours.update({f"{n} demos": series_at(by_demos, n) for n in demo_counts(records)})
+            shared = [t for t in ours if t in published]
             if shared:
                 combined = {
-                    t: {**{f"{m} ({published_name})": v for m, v in published[t].items()}, **table[t]} for t in shared
+                    t: {**{f"{m} ({published_name})": v for m, v in published[t].items()}, **ours[t]} for t in shared
                 }
-                sections.append((f"Side by side on the shared tasks ({', '.join(shared)})", table_rows(combined)))
+                sections.append((f"Side by side on the shared rows ({', '.join(shared)})", table_rows(combined)))
     return {"sections": sections, "figures": figures, "summary": summary, "checks": checks, "warnings": warnings}
 
 

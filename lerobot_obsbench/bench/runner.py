@@ -31,6 +31,7 @@ from lerobot_obsbench.bench.units import (
 )
 from lerobot_obsbench.envs.task import TASKS, asset_help, missing_assets, task_spec
 from lerobot_obsbench.locks import exclusive_output
+from lerobot_obsbench.rlbench.tasks import grid_task_name
 
 RESULTS_FILE = "results.jsonl"
 DEMO_FRAMES_PER_EPISODE = 30  # for estimates before the demonstrations exist
@@ -54,6 +55,9 @@ TRAIN_SAMPLES_PER_SECOND = {
 # Evaluation environment steps per second: cpu from this machine (benchmarks/results/env.json: ~26 rendered steps/s
 # at 128², less the policy's time); cuda a guess (ManiSkill was not run on the GPU machine).
 ENV_STEPS_PER_SECOND = {"cpu": 20.0, "cuda": 60.0}
+# RLBench steps per second: a guess, not measured (CoppeliaSim does not run here). Each step plans a path to the
+# predicted pose and executes it in CoppeliaSim, which simulates on the CPU whatever the policy's device
+RLBENCH_STEPS_PER_SECOND = {"cpu": 1.0, "cuda": 1.0}
 
 
 def device_kind(device: str) -> str:
@@ -72,9 +76,10 @@ def train_seconds(run: RunSpec, steps: int, device: str) -> float:
     return steps * run.batch_size / rate * max(run.image_size / 128, 1.0) ** 2 + 20
 
 
-def eval_seconds(spec: EvalSpec, device: str) -> float:
+def eval_seconds(spec: EvalSpec, device: str, rlbench: bool = False) -> float:
     # successful episodes end early: count ~60% of the budget
-    return spec.episodes * spec.max_steps * 0.6 / ENV_STEPS_PER_SECOND[device_kind(device)] + 10
+    rate = (RLBENCH_STEPS_PER_SECOND if rlbench else ENV_STEPS_PER_SECOND)[device_kind(device)]
+    return spec.episodes * spec.max_steps * 0.6 / rate + 10
 
 
 def demo_dir(out: Path, run: RunSpec, episodes: int) -> Path:
@@ -174,7 +179,7 @@ def print_plan(grid: Grid, work: Work, out: Path, device: str, echo=print) -> No
         totals["episodes"] += sum(s.episodes for s in evals)
         for kind in ("cpu", "cuda"):
             totals[kind] += (train_seconds(run, steps, kind) if train else 0) + sum(
-                eval_seconds(s, kind) for s in evals
+                eval_seconds(s, kind, run.rlbench_task is not None) for s in evals
             )
     echo(
         f"  total to do: {totals['steps']} optimizer steps, {totals['samples']} training samples, "
@@ -208,6 +213,8 @@ class Driver:
         self.started = time.time()
         self.rates: dict[str, tuple[float, int]] = {}  # run_id -> (time, step) at the previous progress line
         self.gpus = 1 if device.startswith("cuda") else 0
+        # where an RLBench grid's units find PerAct's data and the CLIP weights (not part of any run's identity)
+        self.rlbench = {"data": grid.rlbench_data, "clip_weights": grid.clip_weights} if grid.rlbench_data else None
 
     # ---- scheduling ----------------------------------------------------------------------------------------
 
@@ -225,6 +232,7 @@ class Driver:
                 str(demo_dir(self.out, run, episodes)),
                 run.image_size,
                 list(run.cameras),
+                self.rlbench,
             )
         for run in self.work.runs:
             if run.run_id in self.work.trained:
@@ -261,6 +269,7 @@ class Driver:
             str(self.out),
             self.device,
             self.threads,
+            self.rlbench,
             cpus=max(1, self.threads or 1),
             gpus=self.gpus,
         )
@@ -395,7 +404,10 @@ class Driver:
             elif kind == "eval":
                 run, spec = payload
                 state = evaluation_progress(self.out, run.run_id, spec.eval_id)
-                remaining += eval_seconds(spec, self.device) * (1 - (state or {"done": 0})["done"] / spec.episodes)
+                rlbench = run.rlbench_task is not None
+                remaining += eval_seconds(spec, self.device, rlbench) * (
+                    1 - (state or {"done": 0})["done"] / spec.episodes
+                )
                 if state:
                     lines.append(
                         f"  evaluating {run.run_id} {run.method} [{spec.split}, {spec.checkpoint}, "
@@ -412,9 +424,46 @@ class Driver:
             self.echo(line)
 
 
-def check_tasks(grid: Grid) -> None:
+def rlbench_problems(grid: Grid) -> tuple[list[str], str | None]:
+    """(what an RLBench grid's data lacks: task folders, CLIP weights; what the simulator stack lacks, or None)."""
+    from lerobot_obsbench.rlbench.evaluate import RLBenchUnavailable, require_rlbench
+
+    data = Path(grid.rlbench_data).expanduser()
+    splits = ["test", *(["val"] if grid.validation_episodes else [])]
+    if not grid.checkpoints_from:
+        splits.insert(0, "train")
+    missing = [f"{data / split / name}" for name in (grid_task_name(t) for t in grid.tasks) for split in splits]
+    missing = [path for path in missing if not Path(path).is_dir()]
+    problems = []
+    if missing:
+        problems.append(
+            f"rlbench_data lacks {len(missing)} task folder(s): {', '.join(missing[:3])}"
+            + (" ..." if len(missing) > 3 else "")
+            + " (PerAct's pre-generated data: https://github.com/peract/peract, 'Pre-generated datasets'; "
+            "one folder per split, train / val / test, holding one folder per task)"
+        )
+    if grid.clip_weights and not Path(grid.clip_weights).expanduser().is_file():
+        problems.append(f"clip_weights {grid.clip_weights} is not a file (a local CLIP ViT-B/16 checkpoint)")
+    try:
+        require_rlbench()
+        simulator = None
+    except RLBenchUnavailable as err:
+        simulator = str(err)
+    return problems, simulator
+
+
+def check_tasks(grid: Grid, dry_run: bool = False, echo=print) -> None:
     """Refuse, before anything runs, a task the grid cannot record demonstrations of (no scripted expert) or
-    cannot simulate here (its ManiSkill assets missing), naming both problems and their fixes."""
+    cannot simulate here (its ManiSkill assets missing; for RLBench: its data, CLIP weights or the simulator),
+    naming every problem and its fix. A dry run only notes what RLBench lacks here (a plan needs none of it)."""
+    if grid.rlbench_data:
+        problems, simulator = rlbench_problems(grid)
+        problems += [simulator] if simulator else []
+        if problems and dry_run:
+            echo(f"note: this machine cannot run {grid.name} as it is: " + ". Also: ".join(problems))
+        elif problems:
+            raise GridError(f"{grid.name}: " + ". Also: ".join(problems))
+        return
     for name in grid.tasks:
         spec = task_spec(name)
         problems = []
@@ -450,7 +499,7 @@ def run_grid(
     the unit asks for). `loader_workers`: LeRobot's DataLoader workers per training run (0 is fastest on a
     2-core CPU, where a worker competes with training)."""
     out = Path(out)
-    check_tasks(grid)
+    check_tasks(grid, dry_run, echo)
     if dry_run:
         print_plan(grid, load_work(grid, out, echo), out, device, echo)
         return 0

@@ -33,6 +33,7 @@ from importlib import metadata
 from pathlib import Path
 
 from lerobot_obsbench.bench.grid import EvalSpec, RunSpec
+from lerobot_obsbench.rlbench.tasks import grid_task_name
 
 PACKAGES = ("lerobot", "torch", "mani-skill", "sapien", "lerobot_policy_obsbench")
 CHECKPOINTS = "checkpoints"
@@ -78,8 +79,25 @@ def thread_env(threads: int | None) -> dict[str, str]:
 # ---- demonstrations ----------------------------------------------------------------------------------------
 
 
-def demos_unit(task: str, episodes: int, path: str, image_size: int, cameras: list[str]) -> dict:
-    """Record (or finish recording) `episodes` scripted demonstrations of `task` into `path` (resumable)."""
+def demos_unit(
+    task: str, episodes: int, path: str, image_size: int, cameras: list[str], rlbench: dict | None = None
+) -> dict:
+    """Record (or finish recording) `episodes` scripted demonstrations of `task` into `path` (resumable); an
+    RLBench task's are imported from the first `episodes` of `rlbench["data"]`/train/<task> instead."""
+    name = grid_task_name(task)
+    if name is not None:
+        from lerobot_obsbench.datasets.rlbench_import import import_rlbench
+        from lerobot_obsbench.rlbench.text import load_clip_text_encoder
+
+        weights = rlbench.get("clip_weights")
+        return import_rlbench(
+            Path(rlbench["data"]) / "train" / name,
+            Path(path),
+            task=name,
+            cameras=tuple(cameras),
+            text_encoder=load_clip_text_encoder(weights) if weights else None,
+            max_episodes=episodes,
+        )
     from lerobot_obsbench.datasets.recording import record_demos
 
     return record_demos(task, episodes, Path(path), image_size=image_size, cameras=tuple(cameras))
@@ -301,12 +319,12 @@ def eval_unit(
     out_dir: str,
     device: str = "cpu",
     threads: int | None = None,
+    rlbench: dict | None = None,
 ) -> dict:
     """Evaluate one checkpoint (seed split, episodes, perturbation, episode budget of `eval_config`); returns
-    its eval record. Per-episode results go to runs/<run_id>/eval/<eval_id>.json."""
+    its eval record. Per-episode results go to runs/<run_id>/eval/<eval_id>.json. An RLBench run is evaluated
+    by RLBench's protocol on the split's episodes in `rlbench["data"]`."""
     import torch
-
-    from lerobot_obsbench.envs.evaluate import evaluate
 
     if threads:
         torch.set_num_threads(threads)
@@ -315,19 +333,24 @@ def eval_unit(
     folder.mkdir(parents=True, exist_ok=True)
     # the evaluation's own console output (LeRobot's loading messages) goes to its log, not the grid's console
     with open(folder / f"{spec.eval_id}.log", "w") as log, redirect_stdout(log), redirect_stderr(log):
-        result = evaluate(
-            checkpoint,
-            run.task,
-            spec.episodes,
-            image_size=run.image_size,
-            control_mode=run.control_mode,
-            episode_length=spec.max_steps,
-            device=device,
-            perturbation=spec.perturbation,
-            split=spec.split,
-            progress=False,
-            progress_file=folder / f"{spec.eval_id}.progress",
-        )
+        if run.rlbench_task is not None:
+            result = _evaluate_rlbench(spec, run, checkpoint, device, rlbench, folder / f"{spec.eval_id}.progress")
+        else:
+            from lerobot_obsbench.envs.evaluate import evaluate
+
+            result = evaluate(
+                checkpoint,
+                run.task,
+                spec.episodes,
+                image_size=run.image_size,
+                control_mode=run.control_mode,
+                episode_length=spec.max_steps,
+                device=device,
+                perturbation=spec.perturbation,
+                split=spec.split,
+                progress=False,
+                progress_file=folder / f"{spec.eval_id}.progress",
+            )
     (folder / f"{spec.eval_id}.json").write_text(json.dumps({**spec.config(), **result}, indent=2) + "\n")
     keys = ("episodes", "successes", "success_rate", "ci95", "sub_success", "episode_length_mean", "per_seed", "wall_s")
     return {
@@ -341,6 +364,27 @@ def eval_unit(
         **{k: result[k] for k in keys},
         "finished_at": now(),
     }
+
+
+# RLBench's PerAct data names its splits train / val / test
+RLBENCH_SPLITS = {"test": "test", "validation": "val"}
+
+
+def _evaluate_rlbench(spec: EvalSpec, run: RunSpec, checkpoint: str, device: str, rlbench: dict, progress) -> dict:
+    from lerobot_obsbench.rlbench.evaluate import camera_view_for, evaluate_checkpoint
+    from lerobot_obsbench.rlbench.tasks import rlbench_task
+
+    return evaluate_checkpoint(
+        checkpoint,
+        rlbench_task(run.rlbench_task),
+        Path(rlbench["data"]) / RLBENCH_SPLITS[spec.split],
+        spec.episodes,
+        spec.max_steps,
+        camera_view=camera_view_for(spec.perturbation),
+        clip_weights=rlbench.get("clip_weights") if run.language_goal else None,
+        device=device,
+        progress_file=progress,
+    )
 
 
 def evaluation_progress(out_dir: Path, run_id: str, eval_id: str) -> dict | None:

@@ -10,7 +10,6 @@ pre/post-processors).
 from __future__ import annotations
 
 import json
-import os
 import time
 from pathlib import Path
 
@@ -20,31 +19,15 @@ from tqdm import tqdm
 
 from lerobot_obsbench.envs.maniskill import CONTROL_FPS, DEFAULT_CONTROL_MODE, STATE_DIM, ObsBenchEnv
 from lerobot_obsbench.envs.task import eval_seeds, task_spec
-from lerobot_obsbench.outputs import write_text_atomic
+from lerobot_obsbench.outputs import write_json_atomic, write_text_atomic
 from lerobot_obsbench.policies.loading import load_policy
 from lerobot_obsbench.schema import check_compatibility
-from lerobot_obsbench.stats import wilson_interval
+from lerobot_obsbench.stats import per_seed, wilson_interval
 
 
 def check_compatible(config, env: ObsBenchEnv) -> None:
     """Refuse a policy whose cameras, image size, state or action do not match the env (clear message)."""
     check_compatibility(config, env.cameras, (env.image_size, env.image_size), STATE_DIM, env.action_space.shape[0])
-
-
-def write_progress(path: Path, state: dict) -> None:
-    tmp = Path(path).with_suffix(".tmp")
-    tmp.write_text(json.dumps(state))
-    os.replace(tmp, path)
-
-
-def per_seed(records: list[dict]) -> dict:
-    """Compact per-episode outcomes for results files: the seeds, success as a string ('1' success, '.' failure)
-    and the episode lengths, so two evaluations of one checkpoint can be compared seed by seed."""
-    return {
-        "seeds": [r["seed"] for r in records],
-        "success": "".join("1" if r["success"] else "." for r in records),
-        "length": [r["length"] for r in records],
-    }
 
 
 def _batched(obs):
@@ -127,7 +110,7 @@ def evaluate(
         wins = sum(r["success"] for r in records)
         bar.set_postfix(success=f"{wins}/{len(records)}")
         if progress_file is not None:
-            write_progress(progress_file, {"done": len(records), "episodes": len(seeds), "successes": wins})
+            write_json_atomic(progress_file, {"done": len(records), "episodes": len(seeds), "successes": wins})
     env.close()
     successes = sum(r["success"] for r in records)
     low, high = wilson_interval(successes, len(records))
@@ -145,7 +128,9 @@ def evaluate(
         "sub_success": sub,
         "episode_length_mean": round(float(np.mean([r["length"] for r in records])), 2),
         "per_episode": records,
-        "per_seed": per_seed(records),
+        "per_seed": per_seed(
+            [r["seed"] for r in records], [r["success"] for r in records], [r["length"] for r in records]
+        ),
         "image_size": size,
         "control_mode": control_mode,
         "perturbation": perturbation or "none",

@@ -95,6 +95,32 @@ PAPER_TASKS = (
 )
 
 
+# How the paper's tables name them (Table 2 shortens some), for the report's side-by-side with a published table.
+PAPER_ROWS = {
+    "open_drawer": "open drawer",
+    "sweep_to_dustpan_of_size": "sweep to",
+    "meat_off_grill": "meat off grill",
+    "turn_tap": "turn tap",
+    "reach_and_drag": "reach and drag",
+    "put_money_in_safe": "put money",
+    "push_buttons": "push buttons",
+    "close_jar": "close jar",
+    "place_wine_at_rack_location": "place wine",
+}
+CAMERAS = ("front", "left_shoulder", "right_shoulder", "wrist", "overhead")
+IMAGE_SIZE = 128  # PerAct's pre-generated data renders every camera at 128 x 128
+# Point-cloud crop (world frame, metres): PerAct's scene bounds in x and y, z from just under the table top
+# (0.76 m) to PerAct's 1.6 m, so the table's own points stay out of the cloud
+WORKSPACE = (-0.3, 0.7, -0.5, 0.5, 0.76, 1.6)
+# A grid names an RLBench task with this prefix (ManiSkill tasks keep their own ids)
+GRID_PREFIX = "rlbench/"
+
+
+def grid_task_name(task: str) -> str | None:
+    """The RLBench task a grid's task entry names (`rlbench/open_drawer` -> open_drawer), None for ManiSkill."""
+    return task.removeprefix(GRID_PREFIX) if task.startswith(GRID_PREFIX) else None
+
+
 class RLBenchTaskError(ValueError):
     pass
 

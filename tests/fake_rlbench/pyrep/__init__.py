@@ -1,0 +1,1 @@
+"""Stand-in PyRep (tests/fake_rlbench/README.md)."""

@@ -1,0 +1,1 @@
+"""Stand-in RLBench (tests/fake_rlbench/README.md)."""
