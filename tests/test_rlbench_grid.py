@@ -28,6 +28,8 @@ learning_rates: [1.0e-3]
 demos: [2]
 batch_size: 4
 steps: 3
+checkpoints: 1
+validation_episodes: 2
 eval_episodes: 2
 episode_length: 3
 perturbations: [camera_yaw:5]
@@ -38,12 +40,13 @@ perturbations: [camera_yaw:5]
 def rlbench_grid(
     tmp_path_factory,
 ) -> tuple[Path, dict]:
-    """PerAct-style data (train: 3 episodes, test: 2), the grid file and the environment the stand-in needs."""
+    """PerAct-style data (train: 3 episodes, val and test: 2), the grid file and the environment the stand-in needs."""
     from scripts import make_synthetic_dataset as synthetic
 
     root = tmp_path_factory.mktemp("rlbench_grid")
     rlbench_fixtures.write_task(root / "data" / "train" / "open_drawer", synthetic, "variations", episodes=3)
     rlbench_fixtures.write_task(root / "data" / "test" / "open_drawer", synthetic, "all_variations", episodes=2)
+    rlbench_fixtures.write_task(root / "data" / "val" / "open_drawer", synthetic, "variations", episodes=2)
     (root / "coppeliasim").mkdir()
     (root / "grid.yaml").write_text(GRID.format(data=root / "data"))
     path = os.pathsep.join(p for p in (str(FAKE_RLBENCH), os.environ.get("PYTHONPATH")) if p)
@@ -58,7 +61,11 @@ def test_an_rlbench_grid_imports_trains_evaluates_and_reports(rlbench_grid, tmp_
     records = quiet(plain / "results.jsonl")
     (train,) = by_kind(records, "train")
     assert train["task"] == "rlbench/open_drawer" and train["config"]["cameras"] == ["front"]
-    evals = {r["perturbation"]: r for r in by_kind(records, "eval")}
+    (validation,) = [r for r in by_kind(records, "eval") if r["split"] == "validation"]
+    assert validation["checkpoint"] == "step:3" and validation["per_seed"]["seeds"] == [0, 1]  # the val split's
+    evals = {
+        r["perturbation"]: r for r in by_kind(records, "eval") if r["split"] == "test" and r["checkpoint"] == "last"
+    }
     assert set(evals) == {"none", "camera_yaw:5"}
     for record in evals.values():
         assert record["episodes"] == 2 and record["max_steps"] == 3 and record["split"] == "test"
