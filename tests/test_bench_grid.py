@@ -347,3 +347,21 @@ def test_rlbench_presets_are_the_papers_nine_tasks_and_plan_without_the_simulato
     code = main(["run", "paper-rlbench", "--out", str(tmp_path / "out"), "--rlbench-data", str(tmp_path)])
     assert code == 2 and "rlbench_data lacks 27 task folder" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()  # refused before anything was written
+
+
+def test_an_rlbench_grid_asking_for_more_episodes_than_the_data_holds_stops_before_anything_runs(
+    tmp_path, capsys, synthetic_module
+):
+    from tests import rlbench_fixtures
+
+    for split in ("train", "test"):
+        rlbench_fixtures.write_task(tmp_path / "data" / split / "open_drawer", synthetic_module, "variations", 2, 2)
+    (tmp_path / "g.yaml").write_text(
+        "tasks: [rlbench/open_drawer]\nobs_spaces: [rgb]\nsteps: 5\npreset: tiny\ndemos: [5]\neval_episodes: 3\n"
+        f"rlbench_data: {tmp_path / 'data'}\n"
+    )
+    assert main(["run", str(tmp_path / "g.yaml"), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "test/open_drawer holds 2 episodes; the grid's eval_episodes needs 3" in err
+    assert "train/open_drawer holds 2 episodes; the grid's demos needs 5" in err
+    assert "COPPELIASIM_ROOT" in err and not (tmp_path / "out").exists()

@@ -427,14 +427,24 @@ class Driver:
 def rlbench_problems(grid: Grid) -> tuple[list[str], str | None]:
     """(what an RLBench grid's data lacks: task folders, CLIP weights; what the simulator stack lacks, or None)."""
     from lerobot_obsbench.rlbench.evaluate import RLBenchUnavailable, require_rlbench
+    from lerobot_obsbench.rlbench.format import RLBenchFormatError, find_episodes
 
     data = Path(grid.rlbench_data).expanduser()
-    splits = ["test", *(["val"] if grid.validation_episodes else [])]
+    # the episodes each split must hold, and the grid field that asks for them
+    needed = {"test": (grid.eval_episodes, "eval_episodes"), "val": (grid.validation_episodes, "validation_episodes")}
     if not grid.checkpoints_from:
-        splits.insert(0, "train")
-    missing = [f"{data / split / name}" for name in (grid_task_name(t) for t in grid.tasks) for split in splits]
-    missing = [path for path in missing if not Path(path).is_dir()]
+        needed["train"] = (max(grid.demos), "demos")
+    folders = [(data / split / grid_task_name(t), *needed[split]) for t in grid.tasks for split in needed]
+    missing = [str(folder) for folder, count, _ in folders if count and not folder.is_dir()]
     problems = []
+    for folder, count, asked_by in folders:
+        if count and folder.is_dir():
+            try:
+                found = len(find_episodes(folder))
+            except RLBenchFormatError:
+                found = 0
+            if found < count:
+                problems.append(f"{folder} holds {found} episodes; the grid's {asked_by} needs {count}")
     if missing:
         problems.append(
             f"rlbench_data lacks {len(missing)} task folder(s): {', '.join(missing[:3])}"
