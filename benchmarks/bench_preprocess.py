@@ -11,6 +11,7 @@ batched tensor loop.
 from __future__ import annotations
 
 import argparse
+import functools
 from pathlib import Path
 
 import fpsample
@@ -91,7 +92,8 @@ def numpy_reference(rgb, depth, K, cam2world, voxel=0.005, n_seeds=2048, k=16, l
 
 def plugin_pipeline(adapter: ObservationAdapter, batch: dict, n_seeds: int = 2048, k: int = 16):
     cloud = adapter(batch)
-    idx, seed_mask = geometry.farthest_point_sample(cloud.xyz, cloud.mask, n_seeds)
+    # the plugin pipeline's FPS (QuickFPS's start on CPU; `point_pipeline: official` starts at the first point)
+    idx, seed_mask = geometry.farthest_point_sample(cloud.xyz, cloud.mask, n_seeds, start="any")
     seeds = geometry.gather(cloud.xyz, idx)
     neighbours = geometry.knn(seeds, cloud.xyz, cloud.mask, k)
     return seeds, neighbours, cloud.mask.sum(1)
@@ -105,7 +107,8 @@ def fps_paths(batch: dict, n_seeds: int = 2048) -> dict:
     raw = ObservationAdapter("pointcloud", [CAM], workspace=with_table, voxel_size=1e-4).eval()
     with torch.no_grad():
         cloud = raw.to(batch[f"observation.depth.{CAM}"].device)(batch)
-    dedicated = {"cpu": ("fpsample", geometry._fps_fpsample), "cuda": ("triton_kernel", geometry._fps_cuda)}
+    quick = functools.partial(geometry._fps_fpsample, start="any")
+    dedicated = {"cpu": ("fpsample", quick), "cuda": ("triton_kernel", geometry._fps_cuda)}
     name, fast = dedicated[cloud.xyz.device.type]
     out = {"points_per_frame_mean": round(float(cloud.mask.sum(1).float().mean()), 1)}
     seeds = {}

@@ -15,6 +15,8 @@ import torch
 from scipy.spatial import cKDTree
 from torch import Tensor
 
+from lerobot_obsbench.schema import check_choice
+
 
 def unproject_depth(depth: Tensor, K: Tensor) -> Tensor:
     """Camera-frame points (B, H, W, 3) of a metric depth map (B, H, W) with intrinsics K (B, 3, 3)."""
@@ -29,6 +31,9 @@ def unproject_depth(depth: Tensor, K: Tensor) -> Tensor:
     x = (u - cx) / fx * depth
     y = (v - cy) / fy * depth
     return torch.stack([x, y, depth], dim=-1)
+
+
+SURFACE_SLOPE = 5.7  # tan(80 degrees): surfaces seen more obliquely than this count as occlusion edges
 
 
 def register_depth(
@@ -50,10 +55,12 @@ def register_depth(
        pixel; the nearest point wins (z-buffer). This starts each colour pixel (holes take their nearest
        neighbour's start) but is off by up to half a pixel's footprint on slanted surfaces.
     2. refine (`steps` fixed-point iterations): for each colour pixel, the point at depth z on its ray is moved
-       into the depth camera and the depth map is interpolated bilinearly where it lands; z is updated so that the
-       point lies on that interpolated surface. Pixels whose four depth neighbours are not one surface (a jump of
-       more than 2% of the depth: occlusion edges) or whose final residual exceeds `tolerance` metres are 0: the
-       splatted value there is off by up to half a pixel's footprint, so it is dropped rather than kept."""
+       into the depth camera and the depth map's inverse is interpolated bilinearly where it lands (exact on a
+       plane, whose inverse depth is affine in pixel coordinates); z is updated so that the point lies on that
+       surface. Pixels whose four depth neighbours are not one surface (occlusion edges: a jump larger than a
+       surface turned ~80 degrees from the depth camera gives between neighbouring pixels, and at least 2% of
+       the depth) or whose final residual exceeds `tolerance` metres are 0: the splatted value there is off by
+       up to half a pixel's footprint, so it is dropped rather than kept."""
     b, hd, wd = depth.shape
     h, w = size
     dtype, device = depth.dtype, depth.device
@@ -77,7 +84,9 @@ def register_depth(
     q = ray.reshape(b, -1, 3) @ color_to_depth[:, :3, :3].transpose(1, 2)
     t = color_to_depth[:, None, :3, 3]
     flat_depth = depth.reshape(b, -1)
-    batch = torch.arange(b, device=device)[:, None]
+    corner_offsets = torch.tensor([0, 1, wd, wd + 1], device=device)
+    # largest relative depth change between neighbouring depth pixels on one surface (tan 80 deg / focal length)
+    one_surface_jump = (SURFACE_SLOPE / k_depth[:, 0, 0, None]).clamp(min=0.02)
     z_c = z_c.reshape(b, -1)
     for _ in range(steps + 1):
         p = z_c[..., None] * q + t
@@ -87,12 +96,16 @@ def register_depth(
         x0, y0 = torch.floor(ud), torch.floor(vd)
         inside = (x0 >= 0) & (x0 < wd - 1) & (y0 >= 0) & (y0 < hd - 1) & (p[..., 2] > 0)
         base = (y0.clamp(0, hd - 2) * wd + x0.clamp(0, wd - 2)).long()
-        corners = torch.stack([flat_depth[batch, base + offset] for offset in (0, 1, wd, wd + 1)], dim=-1)
+        # the four depth pixels around each landing point, in one gather: (B, N, 4) top-left, top-right, ...
+        corners = flat_depth.gather(1, (base[..., None] + corner_offsets).reshape(b, -1)).reshape(b, -1, 4)
         fx, fy = (ud - x0).clamp(0, 1), (vd - y0).clamp(0, 1)
-        weights = torch.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], dim=-1)
-        surface = (corners * weights).sum(-1)
-        lo, hi = corners.amin(-1), corners.amax(-1)
-        one_surface = inside & (lo > 0) & (hi - lo < 0.02 * hi)
+        c0, c1, c2, c3 = corners.unbind(-1)
+        lo = torch.minimum(torch.minimum(c0, c1), torch.minimum(c2, c3))
+        hi = torch.maximum(torch.maximum(c0, c1), torch.maximum(c2, c3))
+        one_surface = inside & (lo > 0) & (hi - lo < one_surface_jump * hi)
+        i0, i1, i2, i3 = (1 / c.clamp(min=1e-6) for c in (c0, c1, c2, c3))
+        top = i0 + fx * (i1 - i0)
+        surface = 1 / (top + fy * (i2 + fx * (i3 - i2) - top))
         residual = (p[..., 2] - surface).abs()
         z_c = torch.where(one_surface, (surface - t[..., 2]) / q[..., 2], z_c)
     refined = one_surface & (residual < tolerance) & started.reshape(b, -1)
@@ -296,15 +309,19 @@ def _fps_cuda(xyz: Tensor, mask: Tensor, k: int) -> Tensor:
 
 # Below this many points the exact per-point loop is as fast as building QuickFPS's tree.
 QUICK_FPS_MIN_POINTS = 1024
+# Where FPS starts: "first", each cloud's first valid point on every device (the paper's CUDA FPS, index 0);
+# "any", wherever the device's fastest exact FPS starts (CPU: QuickFPS's KD-tree start on large clouds).
+FPS_STARTS = ("first", "any")
 
 
-def _fps_fpsample(xyz: Tensor, mask: Tensor, k: int) -> Tensor:
-    """Per-cloud exact FPS with `fpsample`'s C++ kernels.
+def _fps_fpsample(xyz: Tensor, mask: Tensor, k: int, start: str = "first") -> Tensor:
+    """Per-cloud exact FPS with `fpsample`'s C++ kernels, every seed the point farthest from the seeds before it.
 
-    Clouds of QUICK_FPS_MIN_POINTS or more use QuickFPS (`bucket_fps_kdline_sampling`, 5-10x faster than the
-    per-point loop at 2-10k points): still exact — every seed is the point farthest from the seeds before it — but
-    fpsample 1.0 reads the start index in its tree's order, so its first seed is the point its KD-tree lists first
-    instead of the cloud's first point (the GPU paths' start): same rule, a different start.
+    `start="first"` runs the per-point loop from each cloud's first valid point. `start="any"` runs QuickFPS
+    (`bucket_fps_kdline_sampling`) on clouds of QUICK_FPS_MIN_POINTS or more, 3-7x faster at 2-10k points
+    (batches of 8, 512 or 2,048 seeds): the same rule, but fpsample 1.0 reads the start index in its KD-tree's
+    order (and none of its tree variants takes a start in the cloud's order), so the first seed is the point its
+    tree lists first, and the seeds differ from the GPU paths'.
     """
     xyz_np = xyz.detach().cpu().numpy()
     mask_np = mask.cpu().numpy()
@@ -315,7 +332,7 @@ def _fps_fpsample(xyz: Tensor, mask: Tensor, k: int) -> Tensor:
             out[i, : len(valid)] = valid
             continue
         points = np.ascontiguousarray(xyz_np[i, valid], dtype=np.float32)
-        if len(valid) >= QUICK_FPS_MIN_POINTS:
+        if start == "any" and len(valid) >= QUICK_FPS_MIN_POINTS:
             picked = fpsample.bucket_fps_kdline_sampling(points, k, h=quick_fps_height(len(valid)), start_idx=0)
         else:
             picked = fpsample.fps_sampling(points, k, start_idx=0)
@@ -329,19 +346,23 @@ def quick_fps_height(n_points: int) -> int:
     return 5 if n_points < 16384 else 7
 
 
-def farthest_point_sample(xyz: Tensor, mask: Tensor, k: int) -> tuple[Tensor, Tensor]:
+def farthest_point_sample(xyz: Tensor, mask: Tensor, k: int, start: str = "first") -> tuple[Tensor, Tensor]:
     """Indices (B, k) of k farthest-point seeds of each padded cloud, and their validity mask (B, k).
 
     A cloud with n ≤ k valid points returns all of them (in index order); the remaining k - n slots repeat
     its first point and are marked invalid (the reference CUDA FPS kernel repeats points the same way).
+    `start` (FPS_STARTS): "first" starts each cloud at its first valid point on every device, as the paper's CUDA
+    FPS does; "any" lets CPU start large clouds where QuickFPS's tree starts (`_fps_fpsample`), for speed where
+    parity with the paper and across devices matters less. GPUs start at the first point either way.
     """
+    check_choice("FPS start", start, FPS_STARTS)
     counts = mask.sum(dim=1)
     seed_mask = torch.arange(k, device=xyz.device)[None] < counts[:, None]
     if bool((counts <= k).all()):
         idx = pack(mask, torch.arange(xyz.shape[1], device=xyz.device).expand(xyz.shape[0], -1))[0]
         idx = torch.nn.functional.pad(idx, (0, max(0, k - idx.shape[1])))[:, :k]
     elif xyz.device.type == "cpu":
-        idx = _fps_fpsample(xyz, mask, k)
+        idx = _fps_fpsample(xyz, mask, k, start)
     elif xyz.device.type == "cuda":
         idx = _fps_cuda(xyz, mask, k)
     else:

@@ -93,14 +93,15 @@ def _brute_force_fps(points: np.ndarray, start: int, k: int) -> list[int]:
 
 
 def test_quick_fps_on_large_clouds_is_exact_farthest_point_sampling():
-    """Clouds of QUICK_FPS_MIN_POINTS or more go through QuickFPS: from its start, every seed is the one a brute
-    force picks (the documented difference: the start is the tree's first point, not the cloud's)."""
+    """With start="any" (the plugin's point pipeline) clouds of QUICK_FPS_MIN_POINTS or more go through QuickFPS:
+    from its start, every seed is the one a brute force picks (the documented difference: the start is the tree's
+    first point, not the cloud's; start="first" is tested in test_geometry.py)."""
     g = torch.Generator().manual_seed(2)
     n = geometry.QUICK_FPS_MIN_POINTS + 700
     xyz = torch.rand(2, n + 50, 3, generator=g)
     mask = torch.ones(2, n + 50, dtype=torch.bool)
     mask[1, :50] = False  # padding at the front of the second cloud
-    idx, seed_mask = geometry.farthest_point_sample(xyz, mask, 256)
+    idx, seed_mask = geometry.farthest_point_sample(xyz, mask, 256, start="any")
     assert seed_mask.all()
     for b in range(2):
         valid = torch.nonzero(mask[b]).flatten()
@@ -108,7 +109,7 @@ def test_quick_fps_on_large_clouds_is_exact_farthest_point_sampling():
         assert mask[b, idx[b]].all()
         reference = _brute_force_fps(xyz[b, valid].double().numpy(), int(local[0]), 256)
         assert local.tolist() == reference
-    again, _ = geometry.farthest_point_sample(xyz, mask, 256)
+    again, _ = geometry.farthest_point_sample(xyz, mask, 256, start="any")
     assert torch.equal(idx, again)  # deterministic
 
 

@@ -165,32 +165,36 @@ def fps_triton_interpreted(tmp_path):
 
 
 @pytest.mark.parametrize("backend", ["fpsample", "torch", "triton"])
-def test_fps_matches_brute_force_on_padded_batches(backend, request):
-    xyz, mask = _padded_cloud([500, 300, 40], 30, seed=5)
+def test_fps_from_each_clouds_first_point_matches_brute_force(backend, request):
+    """FPS from each cloud's first valid point, seed for seed a brute force's: on CPU with start="first" (the
+    official point pipeline), and the GPU paths (tensor loop, Triton kernel) run on CPU tensors. Clouds on both
+    sides of QUICK_FPS_MIN_POINTS (where start="any" takes QuickFPS's tree start), with more and fewer points than
+    seeds, padding scattered among the points; random floats, so no distances tie."""
+    quick = geometry.QUICK_FPS_MIN_POINTS
+    counts = [quick + 476, quick, quick - 1, 300, 40]
+    xyz, mask = _padded_cloud(counts, 30, seed=5)
     k = 64
-    if backend in ("torch", "triton"):  # the GPU paths, run here on CPU tensors
-        if backend == "torch":
-            idx = geometry._fps_torch(xyz, mask, k)
-        else:
-            idx = request.getfixturevalue("fps_triton_interpreted")(xyz, mask, k)
-        seed_mask = torch.ones_like(idx, dtype=torch.bool)
-        seed_mask[2, 40:] = False
+    if backend == "fpsample":
+        idx, seed_mask = geometry.farthest_point_sample(xyz, mask, k, start="first")
+        assert (idx[-1, 40:] == idx[-1, 0]).all()  # invalid slots repeat the first seed
     else:
-        idx, seed_mask = geometry.farthest_point_sample(xyz, mask, k)
-    for b in range(3):
+        fps = geometry._fps_torch if backend == "torch" else request.getfixturevalue("fps_triton_interpreted")
+        idx = fps(xyz, mask, k)
+        seed_mask = torch.arange(k)[None] < torch.tensor(counts)[:, None]
+    for b, n in enumerate(counts):
         valid = torch.nonzero(mask[b]).flatten()
-        n = min(k, len(valid))
-        assert seed_mask[b].sum() == n
         picked = idx[b][seed_mask[b]]
-        assert mask[b, picked].all()
-        if len(valid) > k:
-            ref = valid[_fps_reference(xyz[b, valid].double().numpy(), k)]
-            assert picked.tolist() == ref.tolist()
+        assert seed_mask[b].sum() == min(n, k) and mask[b, picked].all()
+        if n > k:
+            assert picked.tolist() == valid[_fps_reference(xyz[b, valid].double().numpy(), k)].tolist()
         else:
             assert sorted(picked.tolist()) == valid.tolist()
-    if backend == "fpsample":
-        # invalid slots repeat the first seed
-        assert (idx[2, 40:] == idx[2, 0]).all()
+
+
+def test_fps_refuses_an_unknown_start():
+    xyz, mask = _padded_cloud([50], 0, seed=0)
+    with pytest.raises(ValueError, match="Unknown FPS start 'fast'; choose one of first, any"):
+        geometry.farthest_point_sample(xyz, mask, 8, start="fast")
 
 
 def test_fps_kernel_breaks_ties_like_the_tensor_loop_across_chunks(fps_triton_interpreted):

@@ -8,6 +8,7 @@ import torch
 from lerobot.configs.default import DatasetConfig
 from lerobot.configs.train import TrainPipelineConfig
 
+from lerobot_obsbench import geometry
 from lerobot_obsbench.encoders import EncoderContext, encoder_output, make_encoder
 from lerobot_obsbench.encoders.point_tokenizer import sine_embedding_3d
 from lerobot_obsbench.policies import ObsACTConfig, ObsDiffusionConfig
@@ -102,6 +103,28 @@ def test_official_point_pipeline():
     assert (norm.eps, norm.momentum) == (1e-5, 0.1)  # PyTorch's defaults, as the official tokenizer
     plugin = make_encoder("pointnet", "pointcloud", "tokens", dim=16, num_tokens=8, knn=4).group_act[0]
     assert (plugin.eps, plugin.momentum) == (1e-3, 0.01)
+
+
+@pytest.mark.parametrize("sampling", ["post", "pre"])
+def test_official_point_pipeline_starts_fps_at_each_clouds_first_point(sampling):
+    """The official tokenizer's seeds are FPS from each cloud's first valid point on CPU too, as the official CUDA
+    FPS on a GPU; the plugin's may start where QuickFPS's tree does (faster on CPU). Clouds of more than
+    QUICK_FPS_MIN_POINTS points (QuickFPS's size), one padded at the front: token positions are the seeds'."""
+    assert paper("obs_act", "pointcloud")["point_pipeline"] == "official"
+    g = torch.Generator().manual_seed(0)
+    n, k = geometry.QUICK_FPS_MIN_POINTS + 500, 32
+    mask = torch.ones(2, n, dtype=torch.bool)
+    mask[1, :7] = False
+    cloud = PointCloud(torch.rand(2, n, 3, generator=g) * 0.2, torch.rand(2, n, 6, generator=g), mask)
+    for pipeline, start in (("official", "first"), ("plugin", "any")):
+        options = {"num_tokens": k, "knn": 4, "sampling": sampling, "pipeline": pipeline}
+        encoder = make_encoder("pointnet", "pointcloud", "tokens", dim=24, **options).eval()
+        with torch.no_grad():
+            _, pos = encoder(cloud)
+        seeds = geometry.gather(cloud.xyz, geometry.farthest_point_sample(cloud.xyz, mask, k, start)[0])
+        torch.testing.assert_close(pos, sine_embedding_3d(seeds, 24, scale=encoder.position_scale))
+        if pipeline == "official":
+            torch.testing.assert_close(seeds[:, 0], cloud.xyz[[0, 1], [0, 7]])
 
 
 def test_official_point_pipeline_samples_randomly_also_at_evaluation(synthetic_module):

@@ -71,14 +71,15 @@ def pixel_diameters(positions: np.ndarray, radius: float, K: np.ndarray, cam2wor
     return np.where(depth > 0, 2 * radius * K[:, 0, 0] / np.maximum(depth, 1e-6), 0.0)
 
 
-def token_share(xyz, mask, num_tokens: int, centres, radii) -> float:
-    """Share of the `num_tokens` FPS seeds of padded clouds (xyz (B, N, 3), mask (B, N)) that lie within `radii`
-    (list of floats) of the matching `centres` (list of (B, 3) tensors); invalid seed slots are not counted."""
+def token_share(xyz, mask, num_tokens: int, centres, radii, fps_start: str) -> float:
+    """Share of the `num_tokens` FPS seeds (started as `fps_start`, geometry.FPS_STARTS) of padded clouds
+    (xyz (B, N, 3), mask (B, N)) that lie within `radii` (list of floats) of the matching `centres` (list of
+    (B, 3) tensors); invalid seed slots are not counted."""
     import torch
 
     from lerobot_obsbench import geometry
 
-    idx, valid = geometry.farthest_point_sample(xyz, mask, num_tokens)
+    idx, valid = geometry.farthest_point_sample(xyz, mask, num_tokens, fps_start)
     seeds = geometry.gather(xyz, idx)  # (B, k, 3)
     on_object = torch.zeros_like(valid)
     for centre, radius in zip(centres, radii, strict=True):
@@ -93,6 +94,7 @@ def held_out_diagnostics(checkpoint: str | Path, dataset: str | Path, episodes: 
     from lerobot.datasets.factory import resolve_delta_timestamps
     from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
 
+    from lerobot_obsbench.encoders.point_tokenizer import FPS_START
     from lerobot_obsbench.policies.loading import load_policy
 
     policy, pre, _ = load_policy(checkpoint, device)
@@ -127,12 +129,11 @@ def held_out_diagnostics(checkpoint: str | Path, dataset: str | Path, episodes: 
             if config.obs_space in POINT_SPACES and config.frame == "world":
                 cloud = adapter(policy.calibrated_depth(frame))
                 centres = [torch.as_tensor(p, dtype=cloud.xyz.dtype) for p, _ in found.values()]
-                shares.append(
-                    (
-                        token_share(cloud.xyz, cloud.mask, config.num_tokens, centres, [r for _, r in found.values()]),
-                        int(cloud.mask.shape[0]),
-                    )
-                )
+                radii = [r for _, r in found.values()]
+                # the seeds the policy's tokenizer picks: its pipeline's FPS start
+                fps_start = FPS_START[config.point_pipeline]
+                share = token_share(cloud.xyz, cloud.mask, config.num_tokens, centres, radii, fps_start)
+                shares.append((share, int(cloud.mask.shape[0])))
     out: dict = {"held_out_episodes": list(episodes), "open_loop_error": round(float(torch.cat(errors).mean()), 4)}
     if pixels:
         out["object_pixels"] = {name: round(float(np.concatenate(v).mean()), 2) for name, v in pixels.items()}
