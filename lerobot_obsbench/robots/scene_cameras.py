@@ -41,7 +41,7 @@ def camera_features(configs: dict[str, CameraConfig]) -> dict[str, tuple]:
             # sources of depth for one camera
             raise ValueError(
                 f"camera {name!r}: {cfg.type} with use_depth=true records LeRobot's own unregistered depth; in the "
-                "plugin's robots use type obsbench_realsense_rgbd (depth aligned to colour, K and cam2world), or "
+                "plugin's robots use type obsbench_realsense_rgbd (depth registered into colour, K and cam2world), or "
                 "record with LeRobot's koch_follower and `obsbench attach-calibration` afterwards"
             )
         else:

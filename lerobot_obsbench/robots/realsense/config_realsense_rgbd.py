@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 from lerobot.cameras.configs import CameraConfig
 
-# librealsense post-processing filters the camera can apply to the aligned depth, in the order given.
+# librealsense post-processing filters the camera can apply to the depth before registering it, in the order given.
 DEPTH_FILTERS = ("spatial", "temporal", "hole_filling")
 # Hardware synchronisation between cameras: librealsense's `inter_cam_sync_mode` values (D400 series).
 SYNC_MODES = {"off": 0, "master": 1, "slave": 2}
@@ -16,7 +16,7 @@ SYNC_MODES = {"off": 0, "master": 1, "slave": 2}
 @dataclass
 class RealSenseRGBDCameraConfig(CameraConfig):
     """An Intel RealSense (D400 series) as one RGB-D sensor: colour and depth from one pipeline at the same fps,
-    depth aligned to colour, both read from the same frameset, depth in uint16 millimetres.
+    depth registered into the colour camera, both read from the same frameset, depth in uint16 millimetres.
 
     Example: `{type: obsbench_realsense_rgbd, serial_number: "128422271347", width: 640, height: 480, fps: 30}`.
     `obsbench find-cameras` lists the serials of connected cameras.
@@ -24,11 +24,11 @@ class RealSenseRGBDCameraConfig(CameraConfig):
 
     # The camera's serial number (`obsbench find-cameras`); may stay empty when `playback_file` is set.
     serial_number: str = ""
-    # Colour stream (depth is captured at the same size and fps, then aligned to colour).
+    # Colour stream (depth is captured at the same size and fps, then registered into the colour camera).
     fps: int | None = 30
     width: int | None = 640
     height: int | None = 480
-    # Store colour (area) and depth (nearest) at width/downsample x height/downsample, K scaled to match: policies
+    # Store colour (area) and registered depth at width/downsample x height/downsample, K scaled to match: policies
     # use 128-224 px, and a 640x480 uint16 depth map is 600 kB a frame in memory until the episode is saved.
     downsample: int = 2
     # librealsense depth filters to apply, any of DEPTH_FILTERS (e.g. ["spatial", "temporal"]).
@@ -39,7 +39,7 @@ class RealSenseRGBDCameraConfig(CameraConfig):
     max_distortion: float = 0.01
     # Play a recorded .bag file instead of a live camera (testing, replaying a session).
     playback_file: str | None = None
-    # Play the file at its recorded rate (True) or as fast as frames are read (False).
+    # Play the file at its recorded rate (True) or as fast as frames are read (False: every frameset once).
     playback_real_time: bool = True
     # Seconds of frames to read and drop after connecting (auto-exposure settles).
     warmup_s: float = 1.0

@@ -1,10 +1,18 @@
 """Intel RealSense as one RGB-D sensor for LeRobot robots (README: Real robot).
 
-LeRobot 0.4.4's `intelrealsense` camera reads colour and depth without aligning them, exposes no intrinsics and
-assumes millimetre depth units. Here one librealsense pipeline streams both at the same fps; a background thread
-takes each frameset, aligns depth to colour (`rs.align`), filters it (optional), converts it to uint16
-millimetres through the device's own depth scale, and keeps colour and depth of that frameset together, so a
-read returns a matching pair. K is the colour stream's pinhole intrinsics (scaled with `downsample`).
+LeRobot's `intelrealsense` camera reads colour and depth without registering them and exposes no intrinsics. Here
+one librealsense pipeline streams both at the same fps; a background thread takes each frameset, filters the depth
+(optional), registers it into the colour camera (`geometry.register_depth`: z along the colour camera's axis at
+each colour pixel centre) through the device's own depth scale, intrinsics and depth -> colour extrinsics, stores
+it as uint16 millimetres, and keeps colour and depth of that frameset together, so a read returns a matching pair.
+K is the colour stream's pinhole intrinsics (scaled with `downsample`).
+
+Why not librealsense's `rs.align`: it writes each depth pixel's own z (the depth camera's) into the colour pixels it
+covers, which is the colour camera's z only when the depth -> colour extrinsic is a pure x-baseline. With a
+D400's real extrinsic (a fraction of a degree of rotation, millimetres of offset) it is off by millimetres:
+measured on a slanted table scene with a 0.5 / -1 / 0.3 degree rotation and a 15 / 1 / 2 mm offset, 16% of its
+pixels are within 1 mm of the colour-frame depth (median 3.6 mm); correcting its z for the rotation still leaves
+6% beyond 1 mm (its nearest-pixel splat); the registration here puts 99.97% within 1 mm (tests/test_realsense.py).
 
 Needs `pyrealsense2` (`pip install 'lerobot_policy_obsbench[realsense]'`; on Linux also Debian's `libusb-1.0-0`).
 """
@@ -18,9 +26,11 @@ from typing import Any
 
 import cv2
 import numpy as np
+import torch
 from lerobot.cameras.camera import Camera
 from lerobot.utils.decorators import check_if_already_connected, check_if_not_connected
 
+from lerobot_obsbench.geometry import register_depth
 from lerobot_obsbench.robots.realsense.config_realsense_rgbd import SYNC_MODES, RealSenseRGBDCameraConfig
 
 logger = logging.getLogger(__name__)
@@ -53,22 +63,40 @@ def pinhole_K(intrinsics, downsample: int = 1) -> np.ndarray:
     )
 
 
-def depth_to_millimetres(raw: np.ndarray, depth_scale: float) -> np.ndarray:
-    """librealsense z16 (device units of `depth_scale` metres) -> uint16 millimetres, 0 = invalid."""
-    if abs(depth_scale - 0.001) < 1e-9:
-        return raw.astype(np.uint16, copy=True)
-    mm = np.rint(raw.astype(np.float64) * (depth_scale * 1000.0))
-    return np.clip(mm, 0, np.iinfo(np.uint16).max).astype(np.uint16)
+def metres_to_millimetres(z: np.ndarray) -> np.ndarray:
+    """Depth in metres -> the schema's uint16 millimetres (0 stays 0: unknown)."""
+    return np.clip(np.rint(z * 1000.0), 0, np.iinfo(np.uint16).max).astype(np.uint16)
 
 
-def downsample_rgbd(colour: np.ndarray, depth: np.ndarray, factor: int) -> tuple[np.ndarray, np.ndarray]:
-    """Colour by area averaging, depth by nearest sampling (averaging depth would invent surfaces at edges)."""
+def downsample_colour(colour: np.ndarray, factor: int) -> np.ndarray:
+    """Colour by area averaging: output pixel i covers input pixels factor*i .. factor*i + factor - 1, so its
+    centre is at (i + 0.5) * factor - 0.5 in input pixels, as `pinhole_K` scales K."""
     if factor == 1:
-        return colour, depth
+        return colour
     h, w = colour.shape[0] // factor, colour.shape[1] // factor
-    colour = cv2.resize(colour, (w, h), interpolation=cv2.INTER_AREA)
-    offset = factor // 2  # the sample nearest each block's centre
-    return colour, np.ascontiguousarray(depth[offset::factor, offset::factor][:h, :w])
+    return cv2.resize(colour, (w, h), interpolation=cv2.INTER_AREA)
+
+
+def subsampled_K(K: np.ndarray, factor: int, offset: int) -> np.ndarray:
+    """K of an image keeping every `factor`-th pixel from `offset` (new pixel i = old pixel factor*i + offset): exact,
+    since kept pixels are not resampled."""
+    out = np.array(K, dtype=np.float64)
+    out[:2, :2] /= factor
+    out[:2, 2] = (out[:2, 2] - offset) / factor
+    return out
+
+
+def extrinsic_matrix(extrinsics) -> np.ndarray:
+    """4 x 4 rigid transform of librealsense extrinsics (its rotation is stored column-major)."""
+    matrix = np.eye(4)
+    matrix[:3, :3] = np.asarray(extrinsics.rotation, dtype=np.float64).reshape(3, 3).T
+    matrix[:3, 3] = extrinsics.translation
+    return matrix
+
+
+# Fixed-point refinement steps of the registration: one brings a slanted surface within 0.01 mm (the splat's start
+# is within half a pixel's footprint); more cost ~25% each and change nothing measurable
+REGISTRATION_STEPS = 1
 
 
 class RealSenseRGBDCamera(Camera):
@@ -80,10 +108,12 @@ class RealSenseRGBDCamera(Camera):
         super().__init__(config)
         self.config = config
         self.height, self.width = config.stored_size
-        self._pipeline = None
+        self._sensors: list | None = None  # the started librealsense sensors (colour, depth)
+        self._syncer = None
         self._thread: Thread | None = None
         self._stop = Event()
         self._new_frame = Event()
+        self._consumed = Event()  # lossless playback: the newest frameset was returned
         self._lock = Lock()
         # (colour, depth, colour frame number, host time of arrival) of the newest frameset
         self._latest: tuple[np.ndarray, np.ndarray, int, float] | None = None
@@ -99,7 +129,7 @@ class RealSenseRGBDCamera(Camera):
 
     @property
     def is_connected(self) -> bool:
-        return self._pipeline is not None
+        return self._sensors is not None
 
     @staticmethod
     def find_cameras() -> list[dict[str, Any]]:
@@ -119,9 +149,11 @@ class RealSenseRGBDCamera(Camera):
     def connect(self, warmup: bool = True) -> None:
         rs = import_realsense()
         cfg = self.config
-        rs_config = rs.config()
         if cfg.playback_file:
-            rs_config.enable_device_from_file(cfg.playback_file, repeat_playback=False)
+            device = rs.context().load_device(cfg.playback_file)
+            playback = device.as_playback()
+            playback.set_real_time(cfg.playback_real_time)
+            playback.pause()  # until both streams feed the syncer, so the first frameset is paired like the rest
         else:
             serials = [c["id"] for c in self.find_cameras()]
             if cfg.serial_number not in serials:
@@ -129,26 +161,35 @@ class RealSenseRGBDCamera(Camera):
                     f"No RealSense camera with serial {cfg.serial_number!r}; connected: {serials or 'none'}. "
                     "Check the USB 3 cable, or run `obsbench find-cameras`."
                 )
-            rs_config.enable_device(cfg.serial_number)
-        rs_config.enable_stream(rs.stream.color, cfg.width, cfg.height, rs.format.rgb8, cfg.fps)
-        rs_config.enable_stream(rs.stream.depth, cfg.width, cfg.height, rs.format.z16, cfg.fps)
-        pipeline = rs.pipeline()
+            device = next(
+                d for d in rs.context().query_devices() if d.get_info(rs.camera_info.serial_number) == cfg.serial_number
+            )
+        colour = self._stream_profile(rs, device, rs.stream.color, rs.format.rgb8)
+        depth = self._stream_profile(rs, device, rs.stream.depth, rs.format.z16)
+        self._configure(rs, device, colour, depth)
+        # each sensor streams into one syncer, which pairs colour and depth of a frameset (librealsense's
+        # pipeline does the same, but drops a recording's first frameset: the syncer hands it out unpaired)
+        self._syncer = rs.syncer()
+        by_sensor: dict[int, tuple[Any, list]] = {}
+        for sensor, stream in (colour, depth):
+            by_sensor.setdefault(id(sensor), (sensor, []))[1].append(stream)
+        started = []
         try:
-            profile = pipeline.start(rs_config)
+            for sensor, streams in by_sensor.values():
+                sensor.open(streams if len(streams) > 1 else streams[0])
+                sensor.start(self._syncer)
+                started.append(sensor)
         except RuntimeError as error:
-            raise ConnectionError(
-                f"{self}: could not start colour + depth at {cfg.width}x{cfg.height} @ {cfg.fps} fps ({error}). "
-                "Pick a mode the camera supports (D415/D435: 640x480 or 1280x720 at 30 fps)."
-            ) from error
-        try:
-            self._configure(rs, profile)
-        except Exception:
-            pipeline.stop()
-            raise
-        self._pipeline = pipeline
+            self._stop_sensors(started)
+            raise ConnectionError(f"{self}: could not start colour + depth ({error}).") from error
+        self._sensors = started
+        self._playback = device.as_playback() if cfg.playback_file else None
+        self._consumed.set()
         self._stop.clear()
-        self._thread = Thread(target=self._read_loop, args=(rs,), name=f"{self}_reader", daemon=True)
+        self._thread = Thread(target=self._read_loop, name=f"{self}_reader", daemon=True)
         self._thread.start()
+        if cfg.playback_file:
+            device.as_playback().resume()
         if warmup:
             deadline = time.perf_counter() + max(cfg.warmup_s, 0.0)
             self.async_read_rgbd(timeout_ms=5000)
@@ -156,19 +197,36 @@ class RealSenseRGBDCamera(Camera):
                 self.async_read_rgbd(timeout_ms=5000)
         logger.info(f"{self} connected: depth scale {self.depth_scale} m, K\n{self.K}")
 
-    def _configure(self, rs, profile) -> None:
+    def _stream_profile(self, rs, device, kind, fmt) -> tuple[Any, Any]:
+        """(sensor, stream profile) of `kind` in the configured size, fps and format; ConnectionError naming the
+        modes the camera offers otherwise."""
         cfg = self.config
-        device = profile.get_device()
+        offered = []
+        for sensor in device.query_sensors():
+            for stream in sensor.get_stream_profiles():
+                if stream.stream_type() != kind or stream.format() != fmt:
+                    continue
+                video = stream.as_video_stream_profile()
+                if (video.width(), video.height(), stream.fps()) == (cfg.width, cfg.height, cfg.fps):
+                    return sensor, stream
+                offered.append(f"{video.width()}x{video.height()}@{stream.fps()}")
+        raise ConnectionError(
+            f"{self}: no {kind} stream at {cfg.width}x{cfg.height} @ {cfg.fps} fps in {fmt}; the camera offers "
+            f"{', '.join(sorted(set(offered))) or 'none'}. Pick one of those (D415/D435: 640x480 or 1280x720 at "
+            "30 fps)."
+        )
+
+    def _configure(self, rs, device, colour, depth) -> None:
+        cfg = self.config
         self.serial_number = device.get_info(rs.camera_info.serial_number)
-        depth_sensor = device.first_depth_sensor()
+        depth_sensor = depth[0].as_depth_sensor()
         self.depth_scale = float(depth_sensor.get_depth_scale())
-        if cfg.playback_file:
-            device.as_playback().set_real_time(cfg.playback_real_time)
-        elif cfg.sync_mode != "off":
+        if not cfg.playback_file and cfg.sync_mode != "off":
             if not depth_sensor.supports(rs.option.inter_cam_sync_mode):
                 raise ConnectionError(f"{self} does not support hardware sync; set sync_mode: off.")
             depth_sensor.set_option(rs.option.inter_cam_sync_mode, SYNC_MODES[cfg.sync_mode])
-        intrinsics = profile.get_stream(rs.stream.color).as_video_stream_profile().get_intrinsics()
+        colour_profile, depth_profile = colour[1].as_video_stream_profile(), depth[1].as_video_stream_profile()
+        intrinsics = colour_profile.get_intrinsics()
         worst = max((abs(c) for c in intrinsics.coeffs), default=0.0)
         if worst > cfg.max_distortion:
             raise ValueError(
@@ -180,38 +238,80 @@ class RealSenseRGBDCamera(Camera):
         self.K = pinhole_K(intrinsics, cfg.downsample)
         filters = {"spatial": rs.spatial_filter, "temporal": rs.temporal_filter, "hole_filling": rs.hole_filling_filter}
         self._filters = [filters[name]() for name in cfg.depth_filters]
-        self._align = rs.align(rs.stream.color)
+        # registration: depth keeps every `downsample`-th pixel (the output's resolution; its K follows exactly),
+        # is unprojected, moved into the colour camera and resampled at the colour output's pixel centres
+        self.depth_to_colour = extrinsic_matrix(depth_profile.get_extrinsics_to(colour_profile))
+        self._depth_offset = cfg.downsample // 2
+        self.K_depth = subsampled_K(pinhole_K(depth_profile.get_intrinsics()), cfg.downsample, self._depth_offset)
+        as_batch = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)[None]
+        self._registration = (as_batch(self.K_depth), as_batch(self.depth_to_colour), as_batch(self.K))
 
-    def _read_loop(self, rs) -> None:
+    def _framesets(self):
+        """(colour frame, depth frame) pairs as the syncer gives them. At start it hands out a stream's first frame
+        alone (nothing to pair it with yet): two such frames with one timestamp are one frameset."""
+        alone = {}
         while not self._stop.is_set():
-            try:
-                ok, frames = self._pipeline.try_wait_for_frames(1000)
-                if not ok:
-                    continue
-                frames = self._align.process(frames)
-                colour_frame, depth_frame = frames.get_color_frame(), frames.get_depth_frame()
-                if not colour_frame or not depth_frame:
-                    continue
-                for block in self._filters:  # on the aligned depth, so the filters also close alignment holes
+            ok, frames = self._syncer.try_wait_for_frames(1000)
+            if not ok:
+                continue
+            colour, depth = frames.get_color_frame(), frames.get_depth_frame()
+            if colour and depth:
+                yield colour, depth
+                continue
+            single = colour or depth
+            if not single:
+                continue
+            single.keep()
+            alone["colour" if colour else "depth"] = single
+            if len(alone) == 2 and alone["colour"].get_timestamp() == alone["depth"].get_timestamp():
+                yield alone.pop("colour"), alone.pop("depth")
+
+    def _read_loop(self) -> None:
+        # one intra-op thread for this reader's registration (OpenMP's setting is per thread: the control loop and
+        # the policy keep theirs): each camera's reader taking every core oversubscribes the CPU (two 640x480
+        # cameras on 2 cores, benchmarks/bench_recording.py: 17.7 -> 11.9 ms a frameset, step p99 19-38 -> 5 ms)
+        torch.set_num_threads(1)
+        try:
+            for colour_frame, depth_frame in self._framesets():
+                for block in self._filters:  # on the camera's own depth, as librealsense designs them
                     depth_frame = block.process(depth_frame)
-                colour = np.asanyarray(colour_frame.get_data())
-                depth = depth_to_millimetres(np.asanyarray(depth_frame.get_data()), self.depth_scale)
-                colour, depth = downsample_rgbd(colour, depth, self.config.downsample)
+                colour = downsample_colour(np.asanyarray(colour_frame.get_data()), self.config.downsample)
+                depth = self.register(np.asanyarray(depth_frame.get_data()))
                 item = (
                     np.ascontiguousarray(colour),
                     depth[..., None],
                     colour_frame.get_frame_number(),
                     time.perf_counter(),
                 )
-            except Exception as error:  # surfaced to the reader, never swallowed
-                self._error = error
+                if self.lossless:  # replaying as fast as frames are read: the previous one first
+                    while not self._consumed.wait(0.1):
+                        if self._stop.is_set():
+                            return
+                    self._consumed.clear()
+                with self._lock:
+                    if self._new_frame.is_set():
+                        self.frames_dropped += 1
+                    self._latest = item
                 self._new_frame.set()
-                return
-            with self._lock:
-                if self._new_frame.is_set():
-                    self.frames_dropped += 1
-                self._latest = item
+        except Exception as error:  # surfaced to the reader, never swallowed
+            self._error = error
             self._new_frame.set()
+
+    @property
+    def lossless(self) -> bool:
+        """A recording played as fast as it is read: every frameset is returned once, none dropped."""
+        return bool(self.config.playback_file) and not self.config.playback_real_time
+
+    def register(self, raw: np.ndarray) -> np.ndarray:
+        """The colour camera's depth (H, W) uint16 mm of a raw z16 depth image (0 = unknown: no return, an
+        occlusion edge, or outside the depth camera's view)."""
+        step, offset = self.config.downsample, self._depth_offset
+        metres = torch.from_numpy(raw[offset::step, offset::step].astype(np.float32) * np.float32(self.depth_scale))
+        K_depth, depth_to_colour, K_colour = self._registration
+        z = register_depth(
+            metres[None], K_depth, depth_to_colour, K_colour, (self.height, self.width), REGISTRATION_STEPS
+        )
+        return metres_to_millimetres(z[0].numpy())
 
     def _take(self, timeout_ms: float, wait: bool) -> tuple[np.ndarray, np.ndarray, int, float]:
         """The newest frameset; `wait`: block for an unread one and mark it read (a peek otherwise)."""
@@ -223,8 +323,12 @@ class RealSenseRGBDCamera(Camera):
             if self._latest is None:
                 raise RuntimeError(f"{self} has not captured a frame yet.")
             if wait:
-                self._new_frame.clear()
+                self._mark_read()
             return self._latest
+
+    def _mark_read(self) -> None:
+        self._new_frame.clear()
+        self._consumed.set()
 
     @check_if_not_connected
     def async_read_rgbd(self, timeout_ms: float = 200) -> tuple[np.ndarray, np.ndarray]:
@@ -235,7 +339,8 @@ class RealSenseRGBDCamera(Camera):
     @check_if_not_connected
     def read_rgbd(self) -> tuple[np.ndarray, np.ndarray]:
         """Wait for a frameset newer than this call, then return its (colour, depth)."""
-        self._new_frame.clear()
+        with self._lock:
+            self._mark_read()
         return self.async_read_rgbd(timeout_ms=10_000)
 
     @check_if_not_connected
@@ -256,12 +361,22 @@ class RealSenseRGBDCamera(Camera):
     def read_latest(self, max_age_ms: int = 500) -> np.ndarray:
         return self.read_latest_rgbd(max_age_ms)[0]
 
+    @staticmethod
+    def _stop_sensors(sensors) -> None:
+        for sensor in sensors:
+            sensor.stop()
+            sensor.close()
+
     @check_if_not_connected
     def disconnect(self) -> None:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=2)
-        self._pipeline.stop()
-        self._pipeline = None
+        if self._playback is not None:  # a recording played as fast as it is read waits for its reader: release it
+            self._playback.pause()
+            while self._syncer.poll_for_frames():
+                pass
+        self._stop_sensors(self._sensors)
+        self._sensors = None
         self._thread = None
         logger.info(f"{self} disconnected.")
