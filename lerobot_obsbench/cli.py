@@ -465,45 +465,103 @@ def cmd_calibrate_cameras(args: argparse.Namespace) -> int:
     return 0
 
 
+def _view_workspace(args: argparse.Namespace):
+    """The crop box of `view` / `refine-cameras`: --workspace, else the --preset's, else the default."""
+    from lerobot_obsbench.presets import preset_overrides
+
+    if args.workspace is not None:
+        return args.workspace
+    if args.preset:
+        workspace = preset_overrides(args.preset, POLICY_TYPES[0], "pointcloud").get("workspace")
+        if workspace is not None:
+            return workspace
+    from lerobot_obsbench.spaces import DEFAULT_WORKSPACE
+
+    return DEFAULT_WORKSPACE
+
+
+def _live_cameras(args: argparse.Namespace, command: str) -> dict:
+    """RealSense configs of --serial / --playback (camera_0, camera_1, ... in that order)."""
+    from lerobot_obsbench.robots.realsense.config_realsense_rgbd import RealSenseRGBDCameraConfig
+
+    if not args.serial and not args.playback:
+        raise SystemExit(f"obsbench {command}: give --serial SERIAL ... or --playback FILE.bag ... for the cameras")
+    sources = [("serial_number", s) for s in args.serial] + [("playback_file", f) for f in args.playback]
+    return {
+        f"camera_{i}": RealSenseRGBDCameraConfig(
+            **{field: value},
+            width=args.width,
+            height=args.height,
+            fps=args.fps,
+            downsample=args.downsample,
+            warmup_s=0.0 if field == "playback_file" else 1.0,
+        )
+        for i, (field, value) in enumerate(sources)
+    }
+
+
 def cmd_view(args: argparse.Namespace) -> int:
     from lerobot_obsbench.datasets.view import dataset_frame, live_frame, log_frame
-    from lerobot_obsbench.presets import preset_overrides
 
     if args.out:  # before the dataset or the cameras are opened
         check_output_file(args.out, "--out", overwrite=True)
-    workspace = args.workspace
-    if workspace is None and args.preset:
-        workspace = preset_overrides(args.preset, POLICY_TYPES[0], "pointcloud").get("workspace")
-    if workspace is None:
-        from lerobot_obsbench.spaces import DEFAULT_WORKSPACE
-
-        workspace = DEFAULT_WORKSPACE
+    if args.ply:
+        check_output_file(args.ply, "--ply", overwrite=True)
+    workspace = _view_workspace(args)
     if args.root:
         frame = dataset_frame(args.root, args.frame, args.repo_id)
     else:
-        from lerobot_obsbench.robots.realsense.config_realsense_rgbd import RealSenseRGBDCameraConfig
-
-        if not args.serial and not args.playback:
-            raise SystemExit("obsbench view: give --root DATASET, or --serial SERIAL / --playback FILE for a camera")
-        sources = [("serial_number", s) for s in args.serial] + [("playback_file", f) for f in args.playback]
-        configs = {
-            f"camera_{i}": RealSenseRGBDCameraConfig(
-                **{field: value},
-                width=args.width,
-                height=args.height,
-                fps=args.fps,
-                downsample=args.downsample,
-                warmup_s=0.0 if field == "playback_file" else 1.0,
-            )
-            for i, (field, value) in enumerate(sources)
-        }
-        frame = live_frame(configs, args.extrinsics_dir)
-    shown = log_frame(frame, workspace, args.voxel_size, args.cameras or None, args.out)
+        frame, _ = live_frame(_live_cameras(args, "view"), args.extrinsics_dir)
+    shown = log_frame(frame, workspace, args.voxel_size, args.cameras or None, args.out, ply=args.ply)
     where = f"saved to {shown['rrd']} (open with `rerun {shown['rrd']}`)" if shown["rrd"] else "sent to the viewer"
     print(
         f"cameras {', '.join(shown['cameras'])}: {shown['points_all']} points, {shown['points_policy']} after the "
         f"workspace {list(workspace)} and {args.voxel_size * 1000:g} mm voxels; {where}"
+        + (f"; cloud written to {shown['ply']}" if shown["ply"] else "")
     )
+    return 0
+
+
+def cmd_refine_cameras(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    import numpy as np
+
+    from lerobot_obsbench.datasets.view import camera_cloud, clouds, live_frame
+    from lerobot_obsbench.robots.extrinsics import load_extrinsics, save_extrinsics
+    from lerobot_obsbench.robots.fusion import align_clouds, write_ply
+    from lerobot_obsbench.schema import cam2world_key
+
+    configs = _live_cameras(args, "refine-cameras")
+    if len(configs) < 2:
+        raise SystemExit("obsbench refine-cameras: give two or more cameras; the first is the reference")
+    if args.ply:
+        check_output_file(args.ply, "--ply", overwrite=True)
+    workspace = _view_workspace(args)
+    frame, serials = live_frame(configs, args.extrinsics_dir)
+    names = list(configs)
+    reference = camera_cloud(frame, names[0], workspace)
+    for name in names[1:]:
+        before = np.asarray(frame[cam2world_key(name)], dtype=np.float64)
+        alignment = align_clouds(
+            reference, camera_cloud(frame, name, workspace), before, args.max_mm, args.max_deg, args.min_overlap
+        )
+        after = np.asarray(alignment.correction) @ before
+        frame[cam2world_key(name)] = after.astype(np.float32)
+        saved = load_extrinsics(serials[name], args.extrinsics_dir)
+        refinement = {"reference_serial": serials[names[0]], "workspace": list(workspace), **alignment.as_dict()}
+        where = "not saved (--dry-run)"
+        if not args.dry_run:
+            path = save_extrinsics(replace(saved, cam2world=after.tolist(), refinement=refinement), args.extrinsics_dir)
+            where = f"saved to {path}"
+        print(
+            f"camera {serials[name]}: moved {alignment.translation_mm:.2f} mm and {alignment.rotation_deg:.3f} degrees "
+            f"onto camera {serials[names[0]]} ({alignment.overlap:.0%} of its points overlap, rmse "
+            f"{alignment.rmse_mm:.2f} mm); {where}"
+        )
+    if args.ply:
+        _, xyz, rgb = clouds(frame, names, workspace, args.voxel_size)
+        print(f"fused cloud of {len(names)} cameras, {len(xyz)} points: {write_ply(args.ply, xyz, rgb)}")
     return 0
 
 
@@ -847,7 +905,30 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", default=None, help="take the crop box from this preset (e.g. real-one-arm)")
     p.add_argument("--voxel-size", type=float, default=0.005)
     p.add_argument("--out", type=Path, default=None, help="save an .rrd file (default without a display)")
+    p.add_argument("--ply", type=Path, default=None, help="also write the policy's fused cloud as .ply (Open3D)")
     p.set_defaults(func=cmd_view)
+
+    p = sub.add_parser(
+        "refine-cameras",
+        help="after calibrate-cameras: align each extra camera's cloud to the first's (Open3D coloured ICP on the "
+        "shared table and objects) and save the corrected cam2world; refuses an implausibly large correction",
+    )
+    p.add_argument("--serial", nargs="*", default=[], help="live cameras; the first is the reference")
+    p.add_argument("--playback", nargs="*", default=[], help="recorded .bag files instead (the first: reference)")
+    p.add_argument("--width", type=int, default=640)
+    p.add_argument("--height", type=int, default=480)
+    p.add_argument("--fps", type=int, default=30)
+    p.add_argument("--downsample", type=int, default=2)
+    p.add_argument("--extrinsics-dir", default=None, help="where calibrate-cameras saved them (default: LeRobot's)")
+    p.add_argument("--workspace", type=float, nargs=6, default=None, help="the region aligned (default: the preset's)")
+    p.add_argument("--preset", default=None, help="take the region from this preset (e.g. real-bimanual)")
+    p.add_argument("--max-mm", type=float, default=20.0, help="refuse a correction moving a camera further")
+    p.add_argument("--max-deg", type=float, default=2.0, help="refuse a correction turning a camera further")
+    p.add_argument("--min-overlap", type=float, default=0.3, help="refuse when less of a cloud meets the reference")
+    p.add_argument("--voxel-size", type=float, default=0.005, help="of the --ply cloud")
+    p.add_argument("--ply", type=Path, default=None, help="write the fused cloud after the refinement as .ply")
+    p.add_argument("--dry-run", action="store_true", help="report the corrections; save nothing")
+    p.set_defaults(func=cmd_refine_cameras)
 
     p = sub.add_parser("preset", help="print the --policy.* overrides of a named preset, to paste into lerobot-train")
     p.add_argument("--preset", default="cpu", choices=tuple(PRESETS))
@@ -924,10 +1005,12 @@ def main(argv: list[str] | None = None) -> int:
     from lerobot_obsbench.rlbench.format import RLBenchFormatError
     from lerobot_obsbench.rlbench.tasks import RLBenchTaskError
     from lerobot_obsbench.rlbench.text import TextEncoderError
+    from lerobot_obsbench.robots.extrinsics import CalibrationError
 
     try:
         return args.func(args)
     except (
+        CalibrationError,
         GridError,
         ReportError,
         TaskError,

@@ -69,6 +69,15 @@ def clouds(frame: Mapping[str, np.ndarray], cameras: list[str], workspace, voxel
     return wide.xyz[0][wide.mask[0]].numpy(), cloud.xyz[0][mask].numpy(), rgb.numpy()
 
 
+def camera_cloud(frame: Mapping[str, np.ndarray], camera: str, workspace) -> tuple[np.ndarray, np.ndarray]:
+    """One camera's world points inside `workspace`, every pixel (no voxel sampling): xyz (N, 3), rgb uint8 (N, 3)."""
+    adapter = ObservationAdapter("pointcloud", [camera], workspace=tuple(workspace), voxel_size=1e-4).eval()
+    cloud = adapter(to_batch(frame))
+    mask = cloud.mask[0]
+    rgb = ((cloud.features[0][mask][:, :3] + 1) * 127.5).round().clamp(0, 255).to(torch.uint8)
+    return cloud.xyz[0][mask].numpy(), rgb.numpy()
+
+
 def log_frame(
     frame: Mapping[str, np.ndarray],
     workspace,
@@ -76,8 +85,10 @@ def log_frame(
     cameras: list[str] | None = None,
     out: str | Path | None = None,
     spawn: bool | None = None,
+    ply: str | Path | None = None,
 ) -> dict:
-    """Log one schema frame to rerun; returns what was logged (point counts, cameras, the .rrd path)."""
+    """Log one schema frame to rerun; returns what was logged (point counts, cameras, the .rrd path). `ply`: also
+    write the policy's fused cloud (cropped, voxel-sampled, coloured) there, for other tools."""
     import rerun as rr
 
     cameras = cameras or [c for c in cameras_in(frame) if depth_key(c) in frame and cam2world_key(c) in frame]
@@ -111,16 +122,24 @@ def log_frame(
     rr.log("world/points_all", rr.Points3D(everything, colors=[[140, 140, 140]], radii=0.001))
     rr.log("world/points_policy", rr.Points3D(xyz, colors=rgb, radii=0.003))
     rr.disconnect()
+    if ply is not None:
+        from lerobot_obsbench.robots.fusion import write_ply
+
+        write_ply(ply, xyz, rgb)
     return {
         "cameras": cameras,
         "points_all": len(everything),
         "points_policy": len(xyz),
         "rrd": str(out) if out else None,
+        "ply": str(ply) if ply else None,
     }
 
 
-def live_frame(camera_configs: dict, extrinsics_dir: str | Path | None = None) -> dict[str, np.ndarray]:
-    """One frameset of live (or played-back) RGB-D cameras with their saved extrinsics, as schema keys."""
+def live_frame(
+    camera_configs: dict, extrinsics_dir: str | Path | None = None
+) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+    """One frameset of live (or played-back) RGB-D cameras with their saved extrinsics, as schema keys; and each
+    camera's serial number (what its extrinsics are saved under)."""
     from lerobot_obsbench.robots.frames import schema_key
     from lerobot_obsbench.robots.scene_cameras import SceneCameras
 
@@ -128,6 +147,7 @@ def live_frame(camera_configs: dict, extrinsics_dir: str | Path | None = None) -
     scene.connect()
     try:
         observation = scene.read()
+        serials = {name: camera.serial_number for name, camera in scene.cameras.items()}
     finally:
         scene.disconnect()
-    return {schema_key(key): value for key, value in observation.items()}
+    return {schema_key(key): value for key, value in observation.items()}, serials

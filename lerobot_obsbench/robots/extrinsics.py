@@ -193,6 +193,8 @@ class CameraExtrinsics:
     # Where the board frame's origin is (the module docstring); files without it put it at the board's outer
     # corner, 35 mm from corner 0 in x and y (`load_extrinsics` warns)
     world_origin: str = "charuco_corner_0"
+    # `obsbench refine-cameras`: the reference camera's serial and the correction applied (robots/fusion.py)
+    refinement: dict | None = None
 
     def matrix(self) -> np.ndarray:
         return np.asarray(self.cam2world, dtype=np.float64)
