@@ -13,8 +13,9 @@ import sys
 from pathlib import Path
 
 from lerobot_obsbench import __version__
+from lerobot_obsbench.errors import ObsBenchError, UsageError
 from lerobot_obsbench.outputs import OutputPathError, check_output_file, check_output_folder, write_text_atomic
-from lerobot_obsbench.schema import MIN_IMAGE_SIZE, OBS_SPACES, POLICY_TYPES, QUATERNION_MODES, SchemaError
+from lerobot_obsbench.schema import MIN_IMAGE_SIZE, OBS_SPACES, POLICY_TYPES, QUATERNION_MODES
 
 
 def cmd_encoders(args: argparse.Namespace) -> int:
@@ -270,7 +271,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     from lerobot_obsbench.bench.results import read_results
 
     if args.results is None and args.table is None:
-        raise SystemExit("obsbench report: give a results file (results.jsonl) and/or --table FILE.csv")
+        raise UsageError("give a results file (results.jsonl) and/or --table FILE.csv")
     if args.results is not None and not args.results.is_file():
         raise ReportError(f"results file {args.results} not found (`obsbench run` writes OUT/results.jsonl)")
     out = args.out or (args.results.parent / "report" if args.results else Path("report"))
@@ -329,18 +330,18 @@ def train_command(items: list[str]) -> list[str]:
             key, value = item.split("=", 1)
             values[key] = value
         else:
-            raise SystemExit(f"obsbench train: {item!r} is neither key=value nor a --lerobot.flag")
+            raise UsageError(f"{item!r} is neither key=value nor a --lerobot.flag")
     policy, env = values.pop("policy", None), values.pop("env", None)
     if policy is None or env is None:
-        raise SystemExit(
-            "obsbench train: give policy=TYPE and env=TYPE, e.g. obsbench train policy=act_pcd env=obsbench_pickcube "
+        raise UsageError(
+            "give policy=TYPE and env=TYPE, e.g. obsbench train policy=act_pcd env=obsbench_pickcube "
             f"(named policy types: {', '.join(NAMED_POLICIES)})"
         )
     task = values.get("env.task") or getattr(EnvConfig.get_choice_class(env)(), "task", None)
     root = values.pop("dataset", None) or (f"data/{env_type_name(task).removeprefix('obsbench_')}" if task else None)
     if not any(f.startswith("--dataset.root") for f in flags):
         if root is None:
-            raise SystemExit(f"obsbench train: env={env} names no OBSBench task; give dataset=DIR")
+            raise UsageError(f"env={env} names no OBSBench task; give dataset=DIR")
         if not (Path(root) / "meta" / "info.json").is_file():
             raise FileNotFoundError(
                 f"no dataset at {root}: record it with `obsbench demos --task {task} --episodes 100 --out {root}` "
@@ -420,7 +421,7 @@ def cmd_calibrate_cameras(args: argparse.Namespace) -> int:
         print(f"{args.print_board}: print at 100 % and check that a square measures {args.square_length * 1000:g} mm")
         return 0
     if not args.serial and not args.playback:
-        raise SystemExit("obsbench calibrate-cameras: give --serial (see `obsbench find-cameras`) or --playback FILE")
+        raise UsageError("give --serial (see `obsbench find-cameras`) or --playback FILE")
     if args.out:  # before the camera starts
         check_output_folder(Path(args.out), "--out")
     board_to_world = np.eye(4)
@@ -480,12 +481,12 @@ def _view_workspace(args: argparse.Namespace):
     return DEFAULT_WORKSPACE
 
 
-def _live_cameras(args: argparse.Namespace, command: str) -> dict:
+def _live_cameras(args: argparse.Namespace) -> dict:
     """RealSense configs of --serial / --playback (camera_0, camera_1, ... in that order)."""
     from lerobot_obsbench.robots.realsense.config_realsense_rgbd import RealSenseRGBDCameraConfig
 
     if not args.serial and not args.playback:
-        raise SystemExit(f"obsbench {command}: give --serial SERIAL ... or --playback FILE.bag ... for the cameras")
+        raise UsageError("give --serial SERIAL ... or --playback FILE.bag ... for the cameras")
     sources = [("serial_number", s) for s in args.serial] + [("playback_file", f) for f in args.playback]
     return {
         f"camera_{i}": RealSenseRGBDCameraConfig(
@@ -511,7 +512,7 @@ def cmd_view(args: argparse.Namespace) -> int:
     if args.root:
         frame = dataset_frame(args.root, args.frame, args.repo_id)
     else:
-        frame, _ = live_frame(_live_cameras(args, "view"), args.extrinsics_dir)
+        frame, _ = live_frame(_live_cameras(args), args.extrinsics_dir)
     shown = log_frame(frame, workspace, args.voxel_size, args.cameras or None, args.out, ply=args.ply)
     where = f"saved to {shown['rrd']} (open with `rerun {shown['rrd']}`)" if shown["rrd"] else "sent to the viewer"
     print(
@@ -532,9 +533,9 @@ def cmd_refine_cameras(args: argparse.Namespace) -> int:
     from lerobot_obsbench.robots.fusion import align_clouds, write_ply
     from lerobot_obsbench.schema import cam2world_key
 
-    configs = _live_cameras(args, "refine-cameras")
+    configs = _live_cameras(args)
     if len(configs) < 2:
-        raise SystemExit("obsbench refine-cameras: give two or more cameras; the first is the reference")
+        raise UsageError("give two or more cameras; the first is the reference")
     if args.ply:
         check_output_file(args.ply, "--ply", overwrite=True)
     workspace = _view_workspace(args)
@@ -973,12 +974,11 @@ def hardware_command(name: str, argv: list[str]) -> int:
     from draccus.utils import DraccusException
 
     import lerobot_obsbench  # noqa: F401  (registers the robots, cameras and policies)
-    from lerobot_obsbench.robots.checks import RobotSetupError
 
     try:
         return importlib.import_module(HARDWARE_COMMANDS[name][0]).main(argv)
     # ValueError: LeRobot's device factories wrap what stops them (a missing SDK, a bad port) in one
-    except (DraccusException, RobotSetupError, ValueError, FileNotFoundError, PermissionError, FileExistsError) as err:
+    except (DraccusException, ObsBenchError, ValueError, FileNotFoundError, PermissionError, FileExistsError) as err:
         print(f"obsbench {name}: error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
@@ -994,37 +994,10 @@ def main(argv: list[str] | None = None) -> int:
     from huggingface_hub.errors import HfHubHTTPError, OfflineModeIsEnabled
 
     import lerobot_obsbench  # noqa: F401  (registers policies and encoders)
-    from lerobot_obsbench.bench.grid import GridError
-    from lerobot_obsbench.bench.hub import PushError
-    from lerobot_obsbench.bench.report import ReportError
-    from lerobot_obsbench.bench.results import ResultsFormatError
-    from lerobot_obsbench.envs.perturbations import PerturbationError
-    from lerobot_obsbench.envs.task import TaskError
-    from lerobot_obsbench.locks import OutputLockedError
-    from lerobot_obsbench.rlbench.evaluate import RLBenchUnavailable
-    from lerobot_obsbench.rlbench.format import RLBenchFormatError
-    from lerobot_obsbench.rlbench.tasks import RLBenchTaskError
-    from lerobot_obsbench.rlbench.text import TextEncoderError
-    from lerobot_obsbench.robots.extrinsics import CalibrationError
 
     try:
         return args.func(args)
-    except (
-        CalibrationError,
-        GridError,
-        ReportError,
-        TaskError,
-        SchemaError,
-        ResultsFormatError,
-        OutputLockedError,
-        OutputPathError,
-        PushError,
-        PerturbationError,
-        RLBenchUnavailable,
-        RLBenchFormatError,
-        RLBenchTaskError,
-        TextEncoderError,
-    ) as err:
+    except ObsBenchError as err:  # raised on purpose, its message naming the field and the fix
         print(f"obsbench {args.command}: error: {err}", file=sys.stderr)
         return 2
     except (PermissionError, FileNotFoundError, FileExistsError) as err:  # a path the user gave: one line

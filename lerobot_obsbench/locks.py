@@ -17,10 +17,12 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+from lerobot_obsbench.errors import ObsBenchError
+
 LOCK_NAME = ".obsbench.lock"
 
 
-class OutputLockedError(RuntimeError):
+class OutputLockedError(ObsBenchError, RuntimeError):
     """Another process is writing the same output directory."""
 
 

@@ -12,8 +12,10 @@ import json
 import os
 from pathlib import Path
 
+from lerobot_obsbench.errors import ObsBenchError
 
-class OutputPathError(ValueError):
+
+class OutputPathError(ObsBenchError, ValueError):
     """An output path the command could not write, or would replace without being asked to."""
 
 

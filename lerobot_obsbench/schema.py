@@ -26,6 +26,8 @@ from dataclasses import dataclass
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_PREFIX, OBS_STATE
 from torch import Tensor
 
+from lerobot_obsbench.errors import ObsBenchError
+
 # The plugin's LeRobot policy types (`--policy.type`).
 POLICY_TYPES = ("obs_act", "obs_diffusion")
 
@@ -93,7 +95,7 @@ SPACE_SENSORS: dict[str, tuple[str, ...]] = {
 }
 
 
-class SchemaError(ValueError):
+class SchemaError(ObsBenchError, ValueError):
     """A dataset or batch does not provide what the chosen observation space needs."""
 
 

@@ -7,6 +7,19 @@ import math
 import numpy as np
 
 
+def success_summary(successes: list[bool]) -> dict:
+    """The success line of an evaluation's result: episodes, successes, rate and its 95% Wilson interval (rate
+    None and interval [0, 1] when no episode ran), rounded to 4 decimals."""
+    n, wins = len(successes), int(sum(bool(s) for s in successes))
+    low, high = wilson_interval(wins, n) if n else (0.0, 1.0)
+    return {
+        "episodes": n,
+        "successes": wins,
+        "success_rate": round(wins / n, 4) if n else None,
+        "ci95": [round(low, 4), round(high, 4)],
+    }
+
+
 def per_seed(seeds: list[int], successes: list[bool], lengths: list[int]) -> dict:
     """Compact per-episode outcomes for results files: the seeds (or episode numbers), success as a string ('1'
     success, '.' failure) and the episode lengths, so two evaluations of one checkpoint compare seed by seed."""

@@ -222,6 +222,54 @@ def push_dataset_without_the_hub(root: Path) -> list[str]:
 
 
 # (row, setup, fragments of the error output)
+def attach_calibration_to_a_missing_dataset(root: Path) -> list[str]:
+    (root / "front.json").write_text("{}\n")
+    return [
+        "attach-calibration",
+        "--root",
+        str(root / "dataset"),
+        "--camera",
+        "front",
+        "--from-json",
+        str(root / "front.json"),
+    ]
+
+
+def validate_a_folder_that_is_no_dataset(root: Path) -> list[str]:
+    (root / "videos").mkdir()
+    return ["validate", "--root", str(root)]
+
+
+def import_h5_without_its_json(root: Path) -> list[str]:
+    (root / "trajectory.h5").write_bytes(b"\x89HDF\r\n")
+    return ["import-h5", "--h5", str(root / "trajectory.h5"), "--out", str(root / "out")]
+
+
+def eval_rlbench_without_the_simulator(root: Path) -> list[str]:
+    return ["eval-rlbench", "--policy.path", str(root / "p"), "--task", "open_drawer", "--data", str(root / "d")]
+
+
+def train_without_a_policy(root: Path) -> list[str]:
+    return ["train", "env=obsbench_pickcube", "--dry-run"]
+
+
+def push_a_folder_that_is_no_run(root: Path) -> list[str]:
+    (root / "run").mkdir()
+    return ["push", str(root / "run"), "org/name"]
+
+
+def refine_one_camera(root: Path) -> list[str]:
+    return ["refine-cameras", "--playback", str(root / "camera0.bag")]
+
+
+def encoders_of_a_typo(root: Path) -> list[str]:
+    return ["encoders", "--obs-space", "pointclould"]
+
+
+def preset_of_a_typo(root: Path) -> list[str]:
+    return ["preset", "--preset", "papper"]
+
+
 ROWS = [
     (demos_over_another_dataset, ["--out", "is not empty (data, meta)", "--overwrite"]),
     (demos_with_another_image_size, ["other settings (image_size 64 there, 128 asked)", "--overwrite"]),
@@ -249,7 +297,19 @@ ROWS = [
     (rollout_with_a_bad_value, ["obsbench rollout: error:", "episodes"]),
     (push_dataset_without_the_hub, ["obsbench push-dataset: error: the Hugging Face Hub:", "HF_HUB_OFFLINE"]),
     (record_one_arm_as_readme_writes_it, ["obsbench record: error:", "KochRGBDFollowerConfig"]),
+    (attach_calibration_to_a_missing_dataset, ["obsbench attach-calibration: error:", "dataset"]),
+    (validate_a_folder_that_is_no_dataset, ["obsbench validate: error:", "is not a LeRobot dataset"]),
+    (import_h5_without_its_json, ["obsbench import-h5: error:", "trajectory.json not found"]),
+    (eval_rlbench_without_the_simulator, ["obsbench eval-rlbench: error:", "COPPELIASIM_ROOT"]),
+    (train_without_a_policy, ["obsbench train: error: give policy=TYPE and env=TYPE"]),
+    (push_a_folder_that_is_no_run, ["obsbench push: error:", "is neither a grid run"]),
+    (refine_one_camera, ["obsbench refine-cameras: error: give two or more cameras"]),
+    (encoders_of_a_typo, ["argument --obs-space: invalid choice: 'pointclould'"]),
+    (preset_of_a_typo, ["argument --preset: invalid choice: 'papper'"]),
 ]
+# Commands whose failure is not one error line: `doctor` reports every check it ran (exit 2 when one fails),
+# `find-cameras` lists what it finds (none is an answer, not an error); both are covered below.
+REPORTING_COMMANDS = {"doctor", "find-cameras"}
 
 
 def _snapshot(root: Path) -> dict[str, bytes]:
@@ -311,3 +371,36 @@ def test_print_board_into_a_new_folder_writes_the_board(tmp_path, capsys):
     assert main(["calibrate-cameras", "--print-board", str(board)]) == 0
     image = cv2.imread(str(board))
     assert image is not None and image.shape[0] > 100 and "print at 100 %" in capsys.readouterr().out
+
+
+def test_every_command_has_an_error_path_here(tmp_path):
+    """A new command without a row above fails this test: each is run with a bad input at least once."""
+    import argparse
+
+    from lerobot_obsbench.cli import HARDWARE_COMMANDS, build_parser
+
+    subparsers = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    folders = {setup: tmp_path / setup.__name__ for setup, _ in ROWS}
+    for folder in folders.values():
+        folder.mkdir()
+    covered = {setup(folder)[0] for setup, folder in folders.items()}
+    assert set(subparsers.choices) | set(HARDWARE_COMMANDS) == covered | REPORTING_COMMANDS
+
+
+def test_doctor_and_find_cameras_report_without_a_traceback(tmp_path, capsys):
+    import subprocess
+    import sys
+
+    # its own process: the asset folder is read when ManiSkill is first imported
+    doctor = subprocess.run(
+        [str(Path(sys.executable).parent / "obsbench"), "doctor", "--asset-dir", str(tmp_path / "no-assets")],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        stdin=subprocess.DEVNULL,
+    )
+    assert doctor.returncode == 2  # TurnFaucet's assets are missing
+    assert "TurnFaucet-v1 needs ManiSkill assets" in doctor.stdout and "Traceback" not in doctor.stdout + doctor.stderr
+    assert main(["find-cameras"]) == 0
+    out = capsys.readouterr()
+    assert "no RealSense camera found" in out.out and "Traceback" not in out.out + out.err

@@ -99,6 +99,14 @@ def test_wilson_interval_against_published_values():
         wilson_interval(3, 2)
 
 
+def test_one_success_summary_for_simulation_rlbench_and_real_robot_results():
+    from lerobot_obsbench.stats import success_summary
+
+    summary = success_summary([False] * 5 + [True] * 5)
+    assert summary == {"episodes": 10, "successes": 5, "success_rate": 0.5, "ci95": [0.2366, 0.7634]}
+    assert success_summary([]) == {"episodes": 0, "successes": 0, "success_rate": None, "ci95": [0.0, 1.0]}
+
+
 def test_small_probes_get_one_line_answers(tmp_path, capsys):
     """The probes of the robustness issue that need no simulator: each answer is one line naming the fix."""
     from lerobot_obsbench import __version__

@@ -91,8 +91,9 @@ def test_point_positions_in_raw_metres():
     cloud = PointCloud(torch.rand(1, 20, 3) * 0.2, torch.rand(1, 20, 6), torch.ones(1, 20, dtype=torch.bool))
     with torch.no_grad():
         _, pos = encoder(cloud)
-    seeds = encoder.backbone  # positions are those of FPS seeds: every row a sine code of raw metres
-    assert pos.shape == (1, 4, 24) and seeds is not None
+    # every position is the sine code of an FPS seed's raw metres, in the seeds' order
+    idx, _ = geometry.farthest_point_sample(cloud.xyz, cloud.mask, 4, encoder.fps_start)
+    torch.testing.assert_close(pos, sine_embedding_3d(geometry.gather(cloud.xyz, idx), 24, scale=1.0))
     assert pos.abs().max() <= 1 and not torch.allclose(pos[0, 0], pos[0, 1])
 
 

@@ -34,6 +34,7 @@ from lerobot_obsbench.bench.package_data import path_or_shipped, shipped
 from lerobot_obsbench.envs.maniskill import DEFAULT_CONTROL_MODE
 from lerobot_obsbench.envs.perturbations import parse_perturbation
 from lerobot_obsbench.envs.task import TASKS, task_spec
+from lerobot_obsbench.errors import ObsBenchError
 from lerobot_obsbench.presets import PRESETS, preset_encoder, preset_overrides
 from lerobot_obsbench.rlbench.evaluate import MAX_STEPS as RLBENCH_MAX_STEPS
 from lerobot_obsbench.rlbench.evaluate import camera_view_for
@@ -55,7 +56,7 @@ RLBENCH_CONTROL_MODE = "ee_pose_planning"  # RLBench's EndEffectorPoseViaPlannin
 CLIP_GOAL = "clip_vit_b16"  # the language goal's encoder, as RLBench runs record it
 
 
-class GridError(ValueError):
+class GridError(ObsBenchError, ValueError):
     """A grid file names something that does not exist or does not fit together."""
 
 

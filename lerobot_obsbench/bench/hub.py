@@ -15,13 +15,14 @@ from pathlib import Path
 from lerobot_obsbench.bench.results import by_kind, read_results
 from lerobot_obsbench.bench.runner import RESULTS_FILE
 from lerobot_obsbench.bench.units import PRETRAINED
+from lerobot_obsbench.errors import ObsBenchError
 
 # What a checkpoint upload carries (LeRobot's own push uploads the same kinds of files).
 CHECKPOINT_PATTERNS = ["*.safetensors", "*.json", "*.md"]
 DATASET_PATTERNS = ["meta/*", "data/*", "videos/*", "images/*", "obsbench_*.json", "README.md"]
 
 
-class PushError(ValueError):
+class PushError(ObsBenchError, ValueError):
     """The thing to push is not where or what the command expects."""
 
 

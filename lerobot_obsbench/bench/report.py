@@ -33,6 +33,7 @@ from pathlib import Path
 
 from lerobot_obsbench.bench.package_data import path_or_shipped, shipped
 from lerobot_obsbench.envs.perturbations import NOMINAL_VALUE, parse_perturbation
+from lerobot_obsbench.errors import ObsBenchError
 from lerobot_obsbench.rlbench.tasks import PAPER_ROWS, grid_task_name
 from lerobot_obsbench.schema import BLIND_SPACES, CONTROL_SPACES, ORACLE_SPACES
 from lerobot_obsbench.stats import seeds_and_episodes_interval, wilson_interval
@@ -73,7 +74,7 @@ class Cell:
         return seeds_and_episodes_interval(list(self.runs))
 
 
-class ReportError(ValueError):
+class ReportError(ObsBenchError, ValueError):
     """Unreadable published table or empty input."""
 
 

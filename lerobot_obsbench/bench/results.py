@@ -22,6 +22,7 @@ import shutil
 import sys
 from pathlib import Path
 
+from lerobot_obsbench.errors import ObsBenchError
 from lerobot_obsbench.outputs import write_text_atomic
 
 KINDS = ("train", "eval")
@@ -33,7 +34,7 @@ REQUIRED = {
 V1_EVAL_FIELDS = ("eval_episodes", "perturbations")
 
 
-class ResultsFormatError(ValueError):
+class ResultsFormatError(ObsBenchError, ValueError):
     """A results file in a format this version does not read."""
 
 

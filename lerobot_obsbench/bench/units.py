@@ -33,6 +33,7 @@ from importlib import metadata
 from pathlib import Path
 
 from lerobot_obsbench.bench.grid import EvalSpec, RunSpec
+from lerobot_obsbench.errors import ObsBenchError
 from lerobot_obsbench.rlbench.tasks import grid_task_name
 
 PACKAGES = ("lerobot", "torch", "mani-skill", "sapien", "lerobot_policy_obsbench")
@@ -41,7 +42,7 @@ CHECKPOINTS = "checkpoints"
 PRETRAINED, TRAINING_STATE, TRAINING_STEP = "pretrained_model", "training_state", "training_step.json"
 
 
-class RunError(RuntimeError):
+class RunError(ObsBenchError, RuntimeError):
     """A unit of work failed; its log says why."""
 
 

@@ -20,11 +20,13 @@ from pathlib import Path
 import torch
 from torch import Tensor, nn
 
+from lerobot_obsbench.errors import ObsBenchError
+
 logger = logging.getLogger(__name__)
 HUB_ID = re.compile(r"^[\w.-]+/[\w.-]+:.+$")
 
 
-class CheckpointError(ValueError):
+class CheckpointError(ObsBenchError, ValueError):
     """A checkpoint that cannot be found, fetched, or loaded into the encoder."""
 
 

@@ -22,7 +22,7 @@ from lerobot_obsbench.envs.task import eval_seeds, task_spec
 from lerobot_obsbench.outputs import write_json_atomic, write_text_atomic
 from lerobot_obsbench.policies.loading import load_policy
 from lerobot_obsbench.schema import check_compatibility
-from lerobot_obsbench.stats import per_seed, wilson_interval
+from lerobot_obsbench.stats import per_seed, success_summary
 
 
 def check_compatible(config, env: ObsBenchEnv) -> None:
@@ -112,19 +112,14 @@ def evaluate(
         if progress_file is not None:
             write_json_atomic(progress_file, {"done": len(records), "episodes": len(seeds), "successes": wins})
     env.close()
-    successes = sum(r["success"] for r in records)
-    low, high = wilson_interval(successes, len(records))
     sub = {name: round(sum(r[name] for r in records) / len(records), 4) for name in spec.sub_success}
     return {
         "task": task,
         "policy_path": str(policy_path),
         "obs_space": getattr(policy.config, "obs_space", None),
         "policy_type": policy.config.type,
-        "episodes": len(records),
+        **success_summary([r["success"] for r in records]),
         "seeds": [r["seed"] for r in records],
-        "successes": successes,
-        "success_rate": round(successes / len(records), 4),
-        "ci95": [round(low, 4), round(high, 4)],
         "sub_success": sub,
         "episode_length_mean": round(float(np.mean([r["length"] for r in records])), 2),
         "per_episode": records,

@@ -24,6 +24,7 @@ import numpy as np
 
 from lerobot_obsbench.envs.perturbations import apply_scene_perturbation, camera_overrides, parse_perturbation
 from lerobot_obsbench.envs.task import TaskError, asset_help, first, missing_assets, task_spec, to_numpy
+from lerobot_obsbench.errors import ObsBenchError
 from lerobot_obsbench.schema import (
     ENV_STATE_KEY,
     MIN_IMAGE_SIZE,
@@ -46,7 +47,7 @@ DEFAULT_CONTROL_MODE = CONTROL_MODES[0]
 STATE_DIM = 16  # qpos (9) + TCP pose (7)
 
 
-class RenderingError(RuntimeError):
+class RenderingError(ObsBenchError, RuntimeError):
     """SAPIEN found no usable Vulkan driver."""
 
 

@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lerobot_obsbench.errors import ObsBenchError
+
 # kind -> how it is written, with an example
 FORMS = {
     "camera_yaw": "camera_yaw:DEG (e.g. camera_yaw:10)",
@@ -35,7 +37,7 @@ DEFAULT_AMBIENT = 0.3
 NOMINAL_VALUE = {"camera_yaw": 0.0, "camera_pitch": 0.0, "light": DEFAULT_AMBIENT, "noise": None, "background": None}
 
 
-class PerturbationError(ValueError):
+class PerturbationError(ObsBenchError, ValueError):
     """A perturbation written wrongly (`kind:value`)."""
 
 

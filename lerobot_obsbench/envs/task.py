@@ -16,6 +16,8 @@ from typing import ClassVar
 
 import numpy as np
 
+from lerobot_obsbench.errors import ObsBenchError
+
 EVAL_SEED_START = 0  # evaluation: seeds 0 .. 9_999 (the paper uses 400 episodes per task)
 VALIDATION_SEED_START = 10_000  # checkpoint selection: 10_000 .. 19_999
 DEMO_SEED_START = 100_000  # demonstrations: 100_000 and up
@@ -38,7 +40,7 @@ def eval_seeds(n: int, split: str = "test") -> list[int]:
     return list(range(start, start + n))
 
 
-class TaskError(ValueError):
+class TaskError(ObsBenchError, ValueError):
     """Unknown task, or a task whose assets are missing."""
 
 

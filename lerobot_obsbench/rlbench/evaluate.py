@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lerobot_obsbench.errors import ObsBenchError
 from lerobot_obsbench.outputs import write_json_atomic
 from lerobot_obsbench.policies.env_passthrough import frame_to_policy_batch
 from lerobot_obsbench.policies.loading import load_policy, predict_chunk
@@ -35,15 +36,15 @@ from lerobot_obsbench.schema import (
     image_key,
     intrinsics_key,
 )
-from lerobot_obsbench.stats import per_seed, wilson_interval
+from lerobot_obsbench.stats import per_seed, success_summary
 
 STEP0_RETRIES = 20
 MAX_STEPS = 200
 PAPER_EPISODES = 25
 
 
-class RLBenchUnavailable(RuntimeError):
-    pass
+class RLBenchUnavailable(ObsBenchError, RuntimeError):
+    """The simulator stack (CoppeliaSim, PyRep, RLBench's fork, a display) is missing: the message says what."""
 
 
 def require_rlbench() -> None:
@@ -212,14 +213,9 @@ def evaluate_rlbench(
                 write_json_atomic(progress_file, {"done": len(records), "episodes": episodes, "successes": wins})
     finally:
         env.shutdown()
-    successes = sum(r["success"] for r in records)
-    low, high = wilson_interval(successes, len(records)) if records else (0.0, 1.0)
     return {
         "task": task.name,
-        "episodes": len(records),
-        "successes": successes,
-        "success_rate": round(successes / len(records), 4) if records else None,
-        "ci95": [round(low, 4), round(high, 4)],
+        **success_summary([r["success"] for r in records]),
         "sub_success": {},  # RLBench scores success only
         "episode_length_mean": round(float(np.mean([r["steps"] for r in records])), 2) if records else None,
         "max_steps": max_steps,

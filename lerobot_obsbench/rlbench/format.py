@@ -31,6 +31,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from lerobot_obsbench.errors import ObsBenchError
+
 DEPTH_SCALE = 2**24 - 1
 ACTION_SIZE = 11  # position (3, scaled by the task's bounds), 6-D rotation, gripper open, ignore collisions
 EPISODE_PATTERN = re.compile(r"episode(\d+)$")
@@ -42,7 +44,7 @@ DEPTH_PNG_MODES = ("RGB", "RGBA")
 MAX_FAR_M = np.iinfo(np.uint16).max / 1000  # the farthest depth the schema's uint16 millimetres hold
 
 
-class RLBenchFormatError(ValueError):
+class RLBenchFormatError(ObsBenchError, ValueError):
     """A demonstration that cannot be read: names the file and what is wrong with it."""
 
 

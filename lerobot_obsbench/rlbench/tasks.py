@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from lerobot_obsbench.errors import ObsBenchError
+
 # task -> ((x, y, z) low, (x, y, z) high)
 LOCATION_BOUNDS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]] = {
     "close_jar": (
@@ -121,7 +123,7 @@ def grid_task_name(task: str) -> str | None:
     return task.removeprefix(GRID_PREFIX) if task.startswith(GRID_PREFIX) else None
 
 
-class RLBenchTaskError(ValueError):
+class RLBenchTaskError(ObsBenchError, ValueError):
     pass
 
 

@@ -14,12 +14,14 @@ from typing import Protocol
 
 import numpy as np
 
+from lerobot_obsbench.errors import ObsBenchError
+
 CLIP_MODEL = "ViT-B-16-quickgelu"
 CLIP_TEXT_DIM = 512
 INSTALL_HINT = "pip install 'lerobot_policy_obsbench[rlbench]' (or pip install open_clip_torch)"
 
 
-class TextEncoderError(RuntimeError):
+class TextEncoderError(ObsBenchError, RuntimeError):
     pass
 
 

@@ -5,8 +5,10 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
+from lerobot_obsbench.errors import ObsBenchError
 
-class RobotSetupError(RuntimeError):
+
+class RobotSetupError(ObsBenchError, RuntimeError):
     """The robot, teleoperator or checkpoint do not fit together; the message names the fix."""
 
 

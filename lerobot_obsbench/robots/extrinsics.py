@@ -50,6 +50,8 @@ import numpy as np
 from lerobot.utils.constants import HF_LEROBOT_CALIBRATION
 from scipy.spatial.transform import Rotation
 
+from lerobot_obsbench.errors import ObsBenchError
+
 logger = logging.getLogger(__name__)
 # Where `obsbench calibrate-cameras` saves one JSON file per camera serial.
 DEFAULT_EXTRINSICS_DIR = HF_LEROBOT_CALIBRATION / "obsbench_extrinsics"
@@ -75,7 +77,7 @@ def charuco_corner_offset_px(opencv_version: str = cv2.__version__) -> float:
     return 0.5 if (4, 7) <= (int(found[1]), int(found[2])) < (4, 14) else 0.0
 
 
-class CalibrationError(RuntimeError):
+class CalibrationError(ObsBenchError, RuntimeError):
     """A board view or a calibration that cannot be trusted, with the reason and the fix."""
 
 

@@ -31,7 +31,7 @@ from lerobot_obsbench.robots.frames import action_dict, dataset_features, motor_
 from lerobot_obsbench.robots.realtime import AsyncChunks, StepTimer
 from lerobot_obsbench.robots.tasks import real_task
 from lerobot_obsbench.schema import ACTION_KEY, DEPTH_PREFIX, IMAGE_PREFIX, STATE_KEY
-from lerobot_obsbench.stats import wilson_interval
+from lerobot_obsbench.stats import success_summary
 
 logger = logging.getLogger(__name__)
 
@@ -214,18 +214,12 @@ def rollout(robot, config: RolloutConfig, operator: Operator | None = None) -> d
 
 
 def summarize(records: list[dict], config: RolloutConfig, policy_config) -> dict:
-    successes = sum(r["success"] for r in records)
-    n = len(records)
-    low, high = wilson_interval(successes, n) if n else (0.0, 1.0)
     return {
         "task": config.task,
         "policy_path": str(config.policy_path),
         "obs_space": getattr(policy_config, "obs_space", None),
         "policy_type": policy_config.type,
-        "episodes": n,
-        "successes": successes,
-        "success_rate": round(successes / n, 4) if n else None,
-        "ci95": [round(low, 4), round(high, 4)],
+        **success_summary([r["success"] for r in records]),
         "per_episode": records,
         "robot": config.robot.type,
         "fps": config.fps,

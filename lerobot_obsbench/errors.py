@@ -1,0 +1,17 @@
+"""The one base of the plugin's own errors.
+
+Every error the plugin raises on purpose (a bad grid, a dataset of another schema, a camera that cannot be
+calibrated, ...) subclasses `ObsBenchError` beside the built-in type it always had (ValueError, RuntimeError), so
+code catching those keeps working; its message names the field or file and the fix, and `obsbench` prints it as
+one line instead of a traceback.
+"""
+
+from __future__ import annotations
+
+
+class ObsBenchError(Exception):
+    """An error raised on purpose, with a message that says what is wrong and how to fix it."""
+
+
+class UsageError(ObsBenchError, ValueError):
+    """Command-line arguments that do not fit together (each is valid alone)."""
