@@ -170,9 +170,9 @@ class RealSenseRGBDCamera(Camera):
         # each sensor streams into one syncer, which pairs colour and depth of a frameset (librealsense's
         # pipeline does the same, but drops a recording's first frameset: the syncer hands it out unpaired)
         self._syncer = rs.syncer()
-        by_sensor: dict[int, tuple[Any, list]] = {}
+        by_sensor: dict[str, tuple[Any, list]] = {}  # one sensor may carry both (the D405's colour is its depth's)
         for sensor, stream in (colour, depth):
-            by_sensor.setdefault(id(sensor), (sensor, []))[1].append(stream)
+            by_sensor.setdefault(sensor.get_info(rs.camera_info.name), (sensor, []))[1].append(stream)
         started = []
         try:
             for sensor, streams in by_sensor.values():
