@@ -511,8 +511,10 @@ def cmd_view(args: argparse.Namespace) -> int:
     workspace = _view_workspace(args)
     if args.root:
         frame = dataset_frame(args.root, args.frame, args.repo_id)
-    else:
+    elif args.serial or args.playback:
         frame, _ = live_frame(_live_cameras(args), args.extrinsics_dir)
+    else:
+        raise UsageError("give --root DATASET, or --serial SERIAL ... / --playback FILE.bag ... for cameras")
     shown = log_frame(frame, workspace, args.voxel_size, args.cameras or None, args.out, ply=args.ply)
     where = f"saved to {shown['rrd']} (open with `rerun {shown['rrd']}`)" if shown["rrd"] else "sent to the viewer"
     print(

@@ -258,6 +258,10 @@ def push_a_folder_that_is_no_run(root: Path) -> list[str]:
     return ["push", str(root / "run"), "org/name"]
 
 
+def view_without_a_dataset_or_camera(root: Path) -> list[str]:
+    return ["view", "--out", str(root / "frame.rrd")]
+
+
 def refine_one_camera(root: Path) -> list[str]:
     return ["refine-cameras", "--playback", str(root / "camera0.bag")]
 
@@ -303,6 +307,7 @@ ROWS = [
     (eval_rlbench_without_the_simulator, ["obsbench eval-rlbench: error:", "COPPELIASIM_ROOT"]),
     (train_without_a_policy, ["obsbench train: error: give policy=TYPE and env=TYPE"]),
     (push_a_folder_that_is_no_run, ["obsbench push: error:", "is neither a grid run"]),
+    (view_without_a_dataset_or_camera, ["obsbench view: error: give --root DATASET, or --serial SERIAL"]),
     (refine_one_camera, ["obsbench refine-cameras: error: give two or more cameras"]),
     (encoders_of_a_typo, ["argument --obs-space: invalid choice: 'pointclould'"]),
     (preset_of_a_typo, ["argument --preset: invalid choice: 'papper'"]),

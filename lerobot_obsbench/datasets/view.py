@@ -57,25 +57,28 @@ def to_batch(frame: Mapping[str, np.ndarray]) -> dict[str, torch.Tensor]:
     return batch
 
 
+def coloured_points(
+    batch: Mapping[str, torch.Tensor], cameras: list[str], workspace, voxel_size: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The fused world points of `cameras` inside `workspace` after voxel sampling, as the policy's point-cloud
+    adapter makes them: xyz (N, 3) and rgb uint8 (N, 3)."""
+    adapter = ObservationAdapter("pointcloud", cameras, workspace=tuple(workspace), voxel_size=voxel_size).eval()
+    cloud = adapter(batch)
+    mask = cloud.mask[0]
+    rgb = ((cloud.features[0][mask][:, :3] + 1) * 127.5).round().clamp(0, 255).to(torch.uint8)
+    return cloud.xyz[0][mask].numpy(), rgb.numpy()
+
+
 def clouds(frame: Mapping[str, np.ndarray], cameras: list[str], workspace, voxel_size: float):
     """(uncropped world points (N, 3), after crop + voxel (xyz (M, 3), rgb uint8 (M, 3))) of the fused cameras."""
     batch = to_batch(frame)
-    everything = ObservationAdapter("pointcloud", cameras, workspace=(-1e3, 1e3, -1e3, 1e3, -1e3, 1e3), voxel_size=1e-4)
-    wide = everything.eval()(batch)
-    cropped = ObservationAdapter("pointcloud", cameras, workspace=tuple(workspace), voxel_size=voxel_size).eval()
-    cloud = cropped(batch)
-    mask = cloud.mask[0]
-    rgb = ((cloud.features[0][mask][:, :3] + 1) * 127.5).round().clamp(0, 255).to(torch.uint8)
-    return wide.xyz[0][wide.mask[0]].numpy(), cloud.xyz[0][mask].numpy(), rgb.numpy()
+    everything, _ = coloured_points(batch, cameras, (-1e3, 1e3, -1e3, 1e3, -1e3, 1e3), 1e-4)
+    return (everything, *coloured_points(batch, cameras, workspace, voxel_size))
 
 
 def camera_cloud(frame: Mapping[str, np.ndarray], camera: str, workspace) -> tuple[np.ndarray, np.ndarray]:
     """One camera's world points inside `workspace`, every pixel (no voxel sampling): xyz (N, 3), rgb uint8 (N, 3)."""
-    adapter = ObservationAdapter("pointcloud", [camera], workspace=tuple(workspace), voxel_size=1e-4).eval()
-    cloud = adapter(to_batch(frame))
-    mask = cloud.mask[0]
-    rgb = ((cloud.features[0][mask][:, :3] + 1) * 127.5).round().clamp(0, 255).to(torch.uint8)
-    return cloud.xyz[0][mask].numpy(), rgb.numpy()
+    return coloured_points(to_batch(frame), [camera], workspace, 1e-4)
 
 
 def log_frame(

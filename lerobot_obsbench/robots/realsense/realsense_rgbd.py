@@ -1,10 +1,11 @@
 """Intel RealSense as one RGB-D sensor for LeRobot robots (README: Real robot).
 
 LeRobot's `intelrealsense` camera reads colour and depth without registering them and exposes no intrinsics. Here
-one librealsense pipeline streams both at the same fps; a background thread takes each frameset, filters the depth
-(optional), registers it into the colour camera (`geometry.register_depth`: z along the colour camera's axis at
-each colour pixel centre) through the device's own depth scale, intrinsics and depth -> colour extrinsics, stores
-it as uint16 millimetres, and keeps colour and depth of that frameset together, so a read returns a matching pair.
+the colour and depth sensors stream at the same fps into one librealsense syncer (librealsense's pipeline would drop
+a recording's first frameset); a background thread takes each frameset, filters the depth (optional), registers it
+into the colour camera (`geometry.register_depth`: z along the colour camera's axis at each colour pixel centre)
+through the device's own depth scale, intrinsics and depth -> colour extrinsics, stores it as uint16 millimetres,
+and keeps colour and depth of that frameset together, so a read returns a matching pair.
 K is the colour stream's pinhole intrinsics (scaled with `downsample`).
 
 Why not librealsense's `rs.align`: it writes each depth pixel's own z (the depth camera's) into the colour pixels it
@@ -110,6 +111,7 @@ class RealSenseRGBDCamera(Camera):
         self.height, self.width = config.stored_size
         self._sensors: list | None = None  # the started librealsense sensors (colour, depth)
         self._syncer = None
+        self._playback = None  # the device of a played-back recording
         self._thread: Thread | None = None
         self._stop = Event()
         self._new_frame = Event()
@@ -167,8 +169,7 @@ class RealSenseRGBDCamera(Camera):
         colour = self._stream_profile(rs, device, rs.stream.color, rs.format.rgb8)
         depth = self._stream_profile(rs, device, rs.stream.depth, rs.format.z16)
         self._configure(rs, device, colour, depth)
-        # each sensor streams into one syncer, which pairs colour and depth of a frameset (librealsense's
-        # pipeline does the same, but drops a recording's first frameset: the syncer hands it out unpaired)
+        # each sensor streams into one syncer, which pairs colour and depth of a frameset
         self._syncer = rs.syncer()
         by_sensor: dict[str, tuple[Any, list]] = {}  # one sensor may carry both (the D405's colour is its depth's)
         for sensor, stream in (colour, depth):
@@ -183,13 +184,13 @@ class RealSenseRGBDCamera(Camera):
             self._stop_sensors(started)
             raise ConnectionError(f"{self}: could not start colour + depth ({error}).") from error
         self._sensors = started
-        self._playback = device.as_playback() if cfg.playback_file else None
+        self._playback = playback if cfg.playback_file else None
         self._consumed.set()
         self._stop.clear()
         self._thread = Thread(target=self._read_loop, name=f"{self}_reader", daemon=True)
         self._thread.start()
-        if cfg.playback_file:
-            device.as_playback().resume()
+        if self._playback is not None:
+            self._playback.resume()
         if warmup:
             deadline = time.perf_counter() + max(cfg.warmup_s, 0.0)
             self.async_read_rgbd(timeout_ms=5000)
