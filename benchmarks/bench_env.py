@@ -16,8 +16,8 @@ import numpy as np
 
 from benchmarks.common import write
 from lerobot_obsbench import schema
+from lerobot_obsbench.envs.base_task import TASKS
 from lerobot_obsbench.envs.maniskill import ObsBenchEnv, import_maniskill
-from lerobot_obsbench.envs.task import TASKS
 
 
 def steps_per_second(env, steps: int, action_space) -> float:

@@ -51,13 +51,13 @@ def main() -> None:
     from lerobot.robots.utils import make_robot_from_config
     from lerobot.teleoperators.utils import make_teleoperator_from_config
 
-    from lerobot_obsbench.datasets.teleop_recording import RecordingConfig, record
+    from lerobot_obsbench.commands.record import RecordingConfig, record
     from lerobot_obsbench.robots import BiKochLeaderConfig, BiKochRGBDFollowerConfig
     from lerobot_obsbench.robots.extrinsics import CameraExtrinsics, save_extrinsics
     from lerobot_obsbench.robots.koch.config_koch_arm import KochFollowerArmConfig, KochLeaderArmConfig
     from lerobot_obsbench.robots.realsense.config_realsense_rgbd import RealSenseRGBDCameraConfig
-    from lerobot_obsbench.robots.realsense.synthetic import StreamSpec, SyntheticRGBD, write_bag
     from tests import fake_hardware
+    from tests.realsense_synthetic import StreamSpec, SyntheticRGBD, write_bag
 
     synthetic = load_synthetic()
     fake_hardware.install(_MonkeyPatch())

@@ -51,7 +51,7 @@ PAIRS = {
         ("pointcloud", "spunet34"),
     ],
 }
-# paper-main's batches (bench/grids/paper-main.yaml)
+# paper-main's batches (configs/grids/paper-main.yaml)
 PAPER_BATCH = {"act": 16, "diffusion": 64}
 
 

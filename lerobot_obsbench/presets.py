@@ -10,7 +10,7 @@
   results from it are never a reproduction.
 - `tiny`: the smallest sizes that still exercise every code path (tests).
 - `real-one-arm` / `real-two-arms`: the paper's real-robot tasks (Reach / Pick Cube, Fold Cloth; see
-  `lerobot_obsbench.robots.tasks`): ACT at lr 5e-5 with chunk 20 / 40, the crop box in the ChArUco world frame.
+  `lerobot_obsbench.robots.real_tasks`): ACT at lr 5e-5 with chunk 20 / 40, the crop box in the ChArUco world frame.
 
 A preset sets only fields that the run's space and encoder use (the policies refuse values they would ignore):
 overrides are keyed by policy type ("*": both) and by the kind of space — "all", "image" (rgb, depth, rgbd,

@@ -329,7 +329,7 @@ def test_bad_rlbench_grids_are_refused(change, words):
 
 
 def test_rlbench_presets_are_the_papers_nine_tasks_and_plan_without_the_simulator(tmp_path, capsys):
-    from lerobot_obsbench.rlbench.tasks import PAPER_TASKS
+    from lerobot_obsbench.rlbench.paper_tasks import PAPER_TASKS
 
     table2 = load_grid("paper-rlbench")
     assert [t.removeprefix("rlbench/") for t in table2.tasks] == list(PAPER_TASKS)

@@ -158,7 +158,7 @@ def test_unparsable_perturbations_say_what_is_expected(text, message):
 
 def test_asset_hint_names_flags_that_exist():
     from lerobot_obsbench.cli import build_parser
-    from lerobot_obsbench.envs.task import asset_help, task_spec
+    from lerobot_obsbench.envs.base_task import asset_help, task_spec
 
     hint = asset_help(task_spec("TurnFaucet-v1"), "/data/ms")
     assert "--asset-dir /data/ms (obsbench doctor, obsbench import-h5)" in hint
@@ -171,9 +171,9 @@ def test_asset_hint_names_flags_that_exist():
 
 
 def test_train_front_end_speaks_the_brief_and_names_the_missing_dataset(tiny_dataset, tmp_path, capsys):
-    from lerobot_obsbench.cli import train_command
+    from lerobot_obsbench.commands.train import lerobot_train_args
 
-    command = train_command(
+    command = lerobot_train_args(
         [
             "policy=act_pcd",
             "env=obsbench_pickcube",

@@ -236,7 +236,7 @@ def test_calibrate_cameras_command_on_a_recorded_camera(tmp_path, capsys):
     """`obsbench calibrate-cameras` end to end: frames of the board played back through librealsense."""
     pytest.importorskip("pyrealsense2")
     from lerobot_obsbench.cli import main as obsbench
-    from lerobot_obsbench.robots.realsense.synthetic import StreamSpec, SyntheticRGBD, write_bag
+    from tests.realsense_synthetic import StreamSpec, SyntheticRGBD, write_bag
 
     truth = board_pose((-35.0, 4.0, -20.0))
     spec = StreamSpec(SIZE[0], SIZE[1], K[0, 0], K[1, 1], K[0, 2], K[1, 2])

@@ -103,7 +103,7 @@ def recorded_pair(tmp_path, synthetic_module):
     """Two playback recordings (one per camera, each its own serial) and the extrinsics calibrate-cameras would
     have saved: the first right, the second off by 5 mm / 0.5 degrees."""
     pytest.importorskip("pyrealsense2")
-    from lerobot_obsbench.robots.realsense.synthetic import StreamSpec, SyntheticRGBD, write_bag
+    from tests.realsense_synthetic import StreamSpec, SyntheticRGBD, write_bag
 
     spec = StreamSpec(W, H, K[0, 0], K[1, 1], K[0, 2], K[1, 2])
     bags, truths, serials = [], [], ["000000000011", "000000000012"]

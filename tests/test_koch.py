@@ -11,7 +11,7 @@ from lerobot.robots.utils import make_robot_from_config
 from lerobot.teleoperators.koch_leader import KochLeaderConfig
 from lerobot.teleoperators.utils import make_teleoperator_from_config
 
-from lerobot_obsbench.datasets.teleop_recording import connect
+from lerobot_obsbench.commands.record import connect
 from lerobot_obsbench.robots import BiKochLeaderConfig, BiKochRGBDFollowerConfig, KochRGBDFollowerConfig
 from lerobot_obsbench.robots.checks import RobotSetupError
 from lerobot_obsbench.robots.koch.config_koch_arm import KochFollowerArmConfig, KochLeaderArmConfig
@@ -185,8 +185,8 @@ def test_stock_command_lines_parse_the_plugin_types(tmp_path):
     from lerobot.scripts.lerobot_calibrate import CalibrateConfig
     from lerobot.scripts.lerobot_teleoperate import TeleoperateConfig
 
-    from lerobot_obsbench.datasets.teleop_recording import RecordConfig
-    from lerobot_obsbench.robots.rollout import RolloutConfig
+    from lerobot_obsbench.cli import build_parser
+    from lerobot_obsbench.commands import common, record, rollout
 
     robot = [
         "--robot.type=obsbench_bi_koch_follower",
@@ -204,8 +204,12 @@ def test_stock_command_lines_parse_the_plugin_types(tmp_path):
     assert parsed.robot.left_arm_config.port == "/dev/ttyACM0" and parsed.robot.cameras["top"].stored_size == (240, 320)
     assert draccus.parse(CalibrateConfig, args=teleop).teleop.right_arm_config.port == "/dev/ttyACM3"
     dataset = [f"--dataset.root={tmp_path}", "--dataset.task=fold the cloth", "--dataset.num_episodes=50"]
-    assert draccus.parse(RecordConfig, args=robot + teleop + dataset).dataset.num_episodes == 50
-    rollout = draccus.parse(RolloutConfig, args=[*robot, "--policy_path=ckpt", "--task=fold_cloth"])
-    assert rollout.episodes == 20 and rollout.episode_time_s == 30.0
+    # obsbench's own commands: argparse options, the device options handed to LeRobot's configs
+    devices, recording = record.configs(common.parse(build_parser(), ["record", *robot, *teleop, *dataset]))
+    assert recording.num_episodes == 50 and recording.task == "fold the cloth"
+    assert devices.robot.right_arm_config.port == "/dev/ttyACM1" and devices.teleop.left_arm_config.port == "/dev/ttyACM2"
+    args = common.parse(build_parser(), ["rollout", *robot, "--policy_path=ckpt", "--task=fold_cloth"])
+    config = common.config_from_args(rollout.RolloutConfig, args)
+    assert config.episodes == 20 and config.episode_time_s == 30.0 and args.device_options == robot
     single = ["--robot.type=obsbench_koch_follower", "--robot.port=/dev/ttyACM0", "--robot.max_relative_target=5"]
     assert draccus.parse(TeleoperateConfig, args=single + ["--teleop.type=koch_leader", "--teleop.port=/dev/x"])

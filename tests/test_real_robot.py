@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 
-from lerobot_obsbench.robots.realsense.synthetic import StreamSpec, SyntheticRGBD, write_bag
+from tests.realsense_synthetic import StreamSpec, SyntheticRGBD, write_bag
 
 SERIAL = "111122223333"
 H, W = 60, 80
@@ -43,12 +43,12 @@ def test_record_train_and_roll_out_on_the_fake_bimanual_robot(tmp_path, syntheti
 
     from lerobot_obsbench import geometry
     from lerobot_obsbench.cli import main as obsbench
-    from lerobot_obsbench.datasets.teleop_recording import RecordingConfig, record
+    from lerobot_obsbench.commands.record import RecordingConfig, record
+    from lerobot_obsbench.commands.rollout import Operator, RolloutConfig, rollout
     from lerobot_obsbench.presets import preset_args
     from lerobot_obsbench.robots.checks import RobotSetupError
     from lerobot_obsbench.robots.extrinsics import CameraExtrinsics, save_extrinsics
     from lerobot_obsbench.robots.realsense.config_realsense_rgbd import RealSenseRGBDCameraConfig
-    from lerobot_obsbench.robots.rollout import Operator, RolloutConfig, rollout
     from tests import fake_hardware
     from tests.test_koch import PORTS, bimanual, calibrate_all, leader_script
 
@@ -132,7 +132,6 @@ def test_record_train_and_roll_out_on_the_fake_bimanual_robot(tmp_path, syntheti
     goals_before = len(fake_hardware.motor_state(PORTS["follower_left"]).goals)
     operator = Operator(start=lambda i: True, judge=lambda i: i == 0, events=events)
     rollout_cfg = RolloutConfig(
-        robot=robot_cfg,
         policy_path=str(checkpoint),
         episodes=2,
         episode_time_s=0.5,

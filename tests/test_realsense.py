@@ -11,7 +11,7 @@ pytest.importorskip("pyrealsense2", reason="pyrealsense2 is in the test extra: p
 
 from lerobot_obsbench.robots.realsense.config_realsense_rgbd import RealSenseRGBDCameraConfig
 from lerobot_obsbench.robots.realsense.realsense_rgbd import RealSenseRGBDCamera
-from lerobot_obsbench.robots.realsense.synthetic import StreamSpec, SyntheticRGBD, write_bag
+from tests.realsense_synthetic import StreamSpec, SyntheticRGBD, write_bag
 
 W, H = 96, 72
 COLOUR = StreamSpec(W, H, 80.0, 80.0, 47.5, 35.5)

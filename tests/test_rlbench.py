@@ -19,7 +19,7 @@ from scipy.spatial.transform import Rotation
 
 from lerobot_obsbench import geometry
 from lerobot_obsbench.rlbench import format as rlformat
-from lerobot_obsbench.rlbench.tasks import PAPER_TASKS, RLBenchTaskError, rlbench_task
+from lerobot_obsbench.rlbench.paper_tasks import PAPER_TASKS, RLBenchTaskError, rlbench_task
 from tests import rlbench_fixtures
 
 BIN = Path(sys.executable).parent

@@ -20,8 +20,8 @@ import torch
 
 from lerobot_obsbench import geometry, schema
 from lerobot_obsbench.envs import ObsBenchEnvConfig, TaskError
+from lerobot_obsbench.envs.base_task import task_spec
 from lerobot_obsbench.envs.maniskill import ObsBenchEnv
-from lerobot_obsbench.envs.task import task_spec
 
 pytestmark = pytest.mark.slow
 BIN = Path(sys.executable).parent
@@ -175,7 +175,7 @@ def demos(tmp_path_factory) -> Path:
     # what a kill during the next episode's write leaves: a partial file under the temporary name, and a log
     # line cut off before its newline
     next_seed = max(int(p.stem.removeprefix("seed_")) for p in kept) + 1
-    (staging / f"seed_{next_seed}.tmp.npz").write_bytes(kept[0].read_bytes()[:1000])
+    (staging / f"seed_{next_seed}.npz.tmp").write_bytes(kept[0].read_bytes()[:1000])
     with open(staging / "attempts.jsonl", "a") as log:
         log.write(f'{{"seed": {next_seed}, "succ')
     rerun = _demos(out, 5)
@@ -391,7 +391,7 @@ def test_import_maniskill_trajectories_written_by_record_episode(tmp_path):
 def test_demos_for_every_task_with_an_expert(task, tmp_path):
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from lerobot_obsbench.datasets.recording import record_demos
+    from lerobot_obsbench.datasets.sim_demos import record_demos
 
     episodes = 1 if task in ("PegInsertionSide-v1", "PlugCharger-v1") else 2  # slow, partly failing experts
     info = record_demos(task, episodes, tmp_path / task, image_size=32)
@@ -405,7 +405,7 @@ def test_demos_for_every_task_with_an_expert(task, tmp_path):
 
 
 def test_demo_errors(tmp_path):
-    from lerobot_obsbench.datasets.recording import record_demos
+    from lerobot_obsbench.datasets.sim_demos import record_demos
 
     with pytest.raises(NotImplementedError, match="No scripted expert for TurnFaucet-v1.*obsbench import-h5"):
         record_demos("TurnFaucet-v1", 1, tmp_path / "faucet", image_size=32)

@@ -14,10 +14,10 @@ import torch
 from lerobot_obsbench.camera_calibration import read_calibration
 from lerobot_obsbench.cli import main
 from lerobot_obsbench.geometry import register_depth
-from lerobot_obsbench.robots.realsense.synthetic import StreamSpec, SyntheticRGBD, write_bag
 from lerobot_obsbench.schema import SchemaError, depth_key, stock_depth_key
 from tests import stock_depth_scene as scene
 from tests.helpers import training_setup
+from tests.realsense_synthetic import StreamSpec, SyntheticRGBD, write_bag
 
 WORKSPACE = [-0.3, 0.3, -0.3, 0.3, -0.02, 0.3]  # the table top included: every point has a surface to land on
 

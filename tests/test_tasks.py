@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from lerobot_obsbench.envs.task import TASKS, Task, TaskError, register_task, task_spec
+from lerobot_obsbench.envs.base_task import TASKS, Task, TaskError, register_task, task_spec
 
 SECTIONS = ("**Task Description:**", "**Randomizations:**", "**Success Conditions:**", "**Expert:**")
 

@@ -30,18 +30,18 @@ from pathlib import Path
 
 import yaml
 
-from lerobot_obsbench.bench.package_data import path_or_shipped, shipped
+from lerobot_obsbench.bench.package_data import GRIDS, path_or_shipped, shipped
+from lerobot_obsbench.envs.base_task import TASKS, task_spec
 from lerobot_obsbench.envs.maniskill import DEFAULT_CONTROL_MODE
 from lerobot_obsbench.envs.perturbations import parse_perturbation
-from lerobot_obsbench.envs.task import TASKS, task_spec
 from lerobot_obsbench.errors import ObsBenchError
 from lerobot_obsbench.presets import PRESETS, preset_encoder, preset_overrides
 from lerobot_obsbench.rlbench.evaluate import MAX_STEPS as RLBENCH_MAX_STEPS
 from lerobot_obsbench.rlbench.evaluate import camera_view_for
-from lerobot_obsbench.rlbench.tasks import CAMERAS as RLBENCH_CAMERAS
-from lerobot_obsbench.rlbench.tasks import IMAGE_SIZE as RLBENCH_IMAGE_SIZE
-from lerobot_obsbench.rlbench.tasks import WORKSPACE as RLBENCH_WORKSPACE
-from lerobot_obsbench.rlbench.tasks import RLBenchTaskError, grid_task_name, rlbench_task
+from lerobot_obsbench.rlbench.paper_tasks import CAMERAS as RLBENCH_CAMERAS
+from lerobot_obsbench.rlbench.paper_tasks import IMAGE_SIZE as RLBENCH_IMAGE_SIZE
+from lerobot_obsbench.rlbench.paper_tasks import WORKSPACE as RLBENCH_WORKSPACE
+from lerobot_obsbench.rlbench.paper_tasks import RLBenchTaskError, grid_task_name, rlbench_task
 from lerobot_obsbench.schema import CONTROL_SPACES, MIN_IMAGE_SIZE, OBS_SPACES, POINT_SPACES, POLICY_TYPES
 
 BUDGET_UNITS = {
@@ -549,12 +549,12 @@ def check_policy_configs(grid: Grid, name: str) -> None:
 
 def preset_grids() -> list[str]:
     """Preset grids ship inside the package (package data), so `obsbench run quick` works from any install."""
-    return shipped("grids", ".yaml")
+    return shipped(GRIDS, ".yaml")
 
 
 def resolve_grid_path(path_or_preset: str | Path):
     """A grid file's path, or the packaged preset grid of that name."""
-    found = path_or_shipped(path_or_preset, "grids", ".yaml")
+    found = path_or_shipped(path_or_preset, GRIDS, ".yaml")
     if found is not None:
         return found
     raise GridError(f"no grid file {str(path_or_preset)!r}; give a YAML path or a preset: {', '.join(preset_grids())}")

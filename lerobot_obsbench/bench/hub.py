@@ -12,8 +12,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from lerobot_obsbench.bench.results import by_kind, read_results
-from lerobot_obsbench.bench.runner import RESULTS_FILE
+from lerobot_obsbench.bench.results import RESULTS_FILE, by_kind, read_results
 from lerobot_obsbench.bench.units import PRETRAINED
 from lerobot_obsbench.errors import ObsBenchError
 

@@ -31,10 +31,10 @@ from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 
-from lerobot_obsbench.bench.package_data import path_or_shipped, shipped
+from lerobot_obsbench.bench.package_data import TABLES, path_or_shipped, shipped
 from lerobot_obsbench.envs.perturbations import NOMINAL_VALUE, parse_perturbation
 from lerobot_obsbench.errors import ObsBenchError
-from lerobot_obsbench.rlbench.tasks import PAPER_ROWS, grid_task_name
+from lerobot_obsbench.rlbench.paper_tasks import PAPER_ROWS, grid_task_name
 from lerobot_obsbench.schema import BLIND_SPACES, CONTROL_SPACES, ORACLE_SPACES
 from lerobot_obsbench.stats import seeds_and_episodes_interval, wilson_interval
 
@@ -102,12 +102,12 @@ def summarize(table: dict[str, dict[str, float]]) -> dict[str, dict]:
 
 def published_tables() -> list[str]:
     """The paper's tables, typed from its LaTeX source, shipped with the package (`--table NAME`)."""
-    return shipped("tables", ".csv")
+    return shipped(TABLES, ".csv")
 
 
 def resolve_table(name_or_path: str | Path):
     """A CSV path, or the packaged paper table of that name."""
-    found = path_or_shipped(name_or_path, "tables", ".csv")
+    found = path_or_shipped(name_or_path, TABLES, ".csv")
     if found is not None:
         return found
     raise ReportError(f"no table {str(name_or_path)!r}: give a CSV path or one of {', '.join(published_tables())}")

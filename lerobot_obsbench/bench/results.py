@@ -25,6 +25,7 @@ from pathlib import Path
 from lerobot_obsbench.errors import ObsBenchError
 from lerobot_obsbench.outputs import write_text_atomic
 
+RESULTS_FILE = "results.jsonl"  # OUT/results.jsonl of a grid run
 KINDS = ("train", "eval")
 REQUIRED = {
     "train": ("run_id", "config", "method", "task", "checkpoint"),
@@ -119,7 +120,7 @@ def upgrade_v1(record: dict) -> list[dict]:
     """A 0.1 record -> its train record and one eval record per evaluation (the last checkpoint, test seeds,
     each task's own episode budget, which is what 0.1 ran)."""
     from lerobot_obsbench.bench.grid import EvalSpec, RunSpec
-    from lerobot_obsbench.envs.task import task_spec
+    from lerobot_obsbench.envs.base_task import task_spec
 
     old = dict(record["config"])
     for key in V1_EVAL_FIELDS:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from lerobot_obsbench.bench.engines import make_engine
 from lerobot_obsbench.bench.grid import BUDGET_UNITS, EvalSpec, Grid, GridError, RunSpec
-from lerobot_obsbench.bench.results import append_result, by_kind, read_results
+from lerobot_obsbench.bench.results import RESULTS_FILE, append_result, by_kind, read_results
 from lerobot_obsbench.bench.units import (
     demo_frames,
     demos_unit,
@@ -29,11 +29,10 @@ from lerobot_obsbench.bench.units import (
     train_unit,
     training_progress,
 )
-from lerobot_obsbench.envs.task import TASKS, asset_help, missing_assets, task_spec
+from lerobot_obsbench.envs.base_task import TASKS, asset_help, missing_assets, task_spec
 from lerobot_obsbench.locks import exclusive_output
-from lerobot_obsbench.rlbench.tasks import grid_task_name
+from lerobot_obsbench.rlbench.paper_tasks import grid_task_name
 
-RESULTS_FILE = "results.jsonl"
 DEMO_FRAMES_PER_EPISODE = 30  # for estimates before the demonstrations exist
 
 # Rough throughput for `--dry-run` estimates and the grid's ETA until a run reports its own rate: training samples

@@ -34,7 +34,7 @@ from pathlib import Path
 
 from lerobot_obsbench.bench.grid import EvalSpec, RunSpec
 from lerobot_obsbench.errors import ObsBenchError
-from lerobot_obsbench.rlbench.tasks import grid_task_name
+from lerobot_obsbench.rlbench.paper_tasks import grid_task_name
 
 PACKAGES = ("lerobot", "torch", "mani-skill", "sapien", "lerobot_policy_obsbench")
 CHECKPOINTS = "checkpoints"
@@ -99,7 +99,7 @@ def demos_unit(
             text_encoder=load_clip_text_encoder(weights) if weights else None,
             max_episodes=episodes,
         )
-    from lerobot_obsbench.datasets.recording import record_demos
+    from lerobot_obsbench.datasets.sim_demos import record_demos
 
     return record_demos(task, episodes, Path(path), image_size=image_size, cameras=tuple(cameras))
 
@@ -272,7 +272,7 @@ def run_diagnostics(
     episodes (which no run trains on). A failure is recorded in place of the held-out figures, not raised: the
     trained run is kept."""
     from lerobot_obsbench.bench.diagnostics import held_out_diagnostics, loss_curve
-    from lerobot_obsbench.envs.task import task_spec
+    from lerobot_obsbench.envs.base_task import task_spec
 
     out: dict = {"loss_curve": loss_curve((root / "train.log").read_text(), log_every(steps))}
     if held_out:
@@ -373,7 +373,7 @@ RLBENCH_SPLITS = {"test": "test", "validation": "val"}
 
 def _evaluate_rlbench(spec: EvalSpec, run: RunSpec, checkpoint: str, device: str, rlbench: dict, progress) -> dict:
     from lerobot_obsbench.rlbench.evaluate import camera_view_for, evaluate_checkpoint
-    from lerobot_obsbench.rlbench.tasks import rlbench_task
+    from lerobot_obsbench.rlbench.paper_tasks import rlbench_task
 
     return evaluate_checkpoint(
         checkpoint,

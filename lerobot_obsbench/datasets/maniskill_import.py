@@ -15,15 +15,16 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from lerobot_obsbench.datasets.recording import (
+from lerobot_obsbench.datasets.staging import (
     STAGING,
     assemble,
+    drop_unfinished,
     prepare_dataset_out,
     save_episode_file,
     settings_differences,
 )
-from lerobot_obsbench.envs.maniskill import DEFAULT_CONTROL_MODE
-from lerobot_obsbench.envs.task import TaskError, task_spec
+from lerobot_obsbench.envs.base_task import TaskError, task_spec
+from lerobot_obsbench.envs.maniskill import CONTROL_FPS, DEFAULT_CONTROL_MODE, ROBOT_TYPE
 from lerobot_obsbench.locks import exclusive_output
 from lerobot_obsbench.schema import ACTION_KEY
 
@@ -90,6 +91,7 @@ def _import_locked(h5_path, out, task, episodes, image_size, cameras, control_mo
 
     staging = out / STAGING
     staging.mkdir(parents=True, exist_ok=True)
+    drop_unfinished(staging)
     env = ObsBenchEnv(task, cameras=cameras, image_size=image_size, control_mode=control_mode, asset_dir=asset_dir)
     files = []
     with h5py.File(h5_path, "r") as f:
@@ -109,7 +111,14 @@ def _import_locked(h5_path, out, task, episodes, image_size, cameras, control_mo
                 frames.append({**env.schema_frame(env.raw_observation()), ACTION_KEY: action})
             save_episode_file(target, {k: np.stack([fr[k] for fr in frames]) for k in frames[0]})
     env.close()
-    assemble(out, files, task_spec(task).description, repo_id=repo_id or f"local/obsbench_{task}_imported")
+    assemble(
+        out,
+        files,
+        task_spec(task).description,
+        repo_id=repo_id or f"local/obsbench_{task}_imported",
+        fps=CONTROL_FPS,
+        robot_type=ROBOT_TYPE,
+    )
     info = {
         "task": task,
         "source": str(h5_path),

@@ -20,10 +20,10 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from lerobot_obsbench.datasets.recording import (
+from lerobot_obsbench.datasets.staging import (
     STAGING,
-    TMP_SUFFIX,
     assemble,
+    drop_unfinished,
     prepare_dataset_out,
     save_episode_file,
     settings_differences,
@@ -38,7 +38,7 @@ from lerobot_obsbench.rlbench.format import (
     low_dim,
     read_episode,
 )
-from lerobot_obsbench.rlbench.tasks import rlbench_task
+from lerobot_obsbench.rlbench.paper_tasks import rlbench_task
 from lerobot_obsbench.rlbench.text import TextEncoder
 from lerobot_obsbench.schema import (
     ACTION_KEY,
@@ -98,8 +98,7 @@ def import_rlbench(
 def _import_locked(task_dir, out, spec, episodes, cameras, text_encoder, quaternion, repo_id, strict) -> dict:
     staging = out / STAGING
     staging.mkdir(parents=True, exist_ok=True)
-    for leftover in staging.glob(f"*{TMP_SUFFIX}"):  # cut off by a kill mid-write
-        leftover.unlink()
+    drop_unfinished(staging)
     files, texts, imported, skipped = [], [], [], []
     for ref in tqdm(episodes, desc=f"import {spec.name}", unit="ep"):
         target = staging / f"{ref.path.parent.parent.name}_{ref.path.name}.npz"

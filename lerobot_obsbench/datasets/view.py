@@ -138,6 +138,45 @@ def log_frame(
     }
 
 
+def crop_box(workspace: tuple[float, ...] | None, preset: str | None) -> tuple[float, ...]:
+    """The crop box `view` and `refine-cameras` use: the one given, else the preset's, else the default."""
+    from lerobot_obsbench.presets import preset_overrides
+    from lerobot_obsbench.schema import POLICY_TYPES
+    from lerobot_obsbench.spaces import DEFAULT_WORKSPACE
+
+    if workspace is not None:
+        return tuple(workspace)
+    if preset:
+        from_preset = preset_overrides(preset, POLICY_TYPES[0], "pointcloud").get("workspace")
+        if from_preset is not None:
+            return tuple(from_preset)
+    return DEFAULT_WORKSPACE
+
+
+def live_camera_configs(
+    serials: list[str], recordings: list[str], width: int, height: int, fps: int, downsample: int
+) -> dict:
+    """RealSense configs of live cameras (by serial) and recordings (.bag), named camera_0, camera_1, ... in that
+    order; a recording needs no auto-exposure warm-up."""
+    from lerobot_obsbench.errors import UsageError
+    from lerobot_obsbench.robots.realsense.config_realsense_rgbd import RealSenseRGBDCameraConfig
+
+    if not serials and not recordings:
+        raise UsageError("give --serial SERIAL ... or --playback FILE.bag ... for the cameras")
+    sources = [("serial_number", s) for s in serials] + [("playback_file", f) for f in recordings]
+    return {
+        f"camera_{i}": RealSenseRGBDCameraConfig(
+            **{field: value},
+            width=width,
+            height=height,
+            fps=fps,
+            downsample=downsample,
+            warmup_s=0.0 if field == "playback_file" else 1.0,
+        )
+        for i, (field, value) in enumerate(sources)
+    }
+
+
 def live_frame(
     camera_configs: dict, extrinsics_dir: str | Path | None = None
 ) -> tuple[dict[str, np.ndarray], dict[str, str]]:

@@ -14,6 +14,8 @@ encoded points (post) or seeds (pre), or the official tokenizer + projector (see
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 from torch import Tensor, nn
 
@@ -107,19 +109,52 @@ class OfficialDiffusionHead(nn.Module):
         return self.out(feats.masked_fill(~used[..., None], float("-inf")).amax(dim=1))
 
 
-class PointTokenEncoder(nn.Module):
-    """A per-point backbone + the point tokenizer: ACT tokens (B, S, dim) with 3D sine positions, or one
-    global feature for Diffusion Policy.
+@dataclass(frozen=True)
+class PointTokenOptions:
+    """How the point tokenizer turns per-point features into tokens: the option set every point encoder
+    (`pointnet`, `spunet34`) takes, as encoder options of the same names (`encoders.registry`).
 
+    - `sampling`: "post" (the paper's) or "pre" (see the module docstring); `num_tokens` FPS seeds of `knn`
+      neighbours each.
     - `position_scale`: the token positions are the sine embedding of position_scale x seed xyz (metres); the
       official ACT code embeds raw metres (1.0), which leaves only a few channels varying over a table-top scene.
     - `pipeline="official"`: FPS starts each cloud at its first point on every device, the tokenizer's BatchNorm
       takes PyTorch's defaults and its batch statistics include the repeated slots of clouds with fewer points
       than seeds, as in the official code (`plugin`: on CPU FPS starts large clouds where QuickFPS does).
     - `global_head` (Diffusion Policy): "maxpool", a max over the encoded points (post) or seeds (pre); or
-      "official", the official tokenizer + projector: `dp_projection` (an extra per-point Linear, PointNet's
-      512 -> 96), the tokenizer at the backbone's width, `dp_widths` per-token layers, max over seeds, 128-d.
+      "official", the official tokenizer + projector (see `PointTokenEncoder`).
     """
+
+    sampling: str = "post"
+    num_tokens: int = 2048
+    knn: int = 16
+    position_scale: float = 100.0
+    pipeline: str = "plugin"
+    global_head: str = "maxpool"
+
+    def __post_init__(self) -> None:
+        check_choice("sampling", self.sampling, SAMPLING)
+        check_choice("pipeline", self.pipeline, PIPELINES)
+        check_choice("global_head", self.global_head, GLOBAL_HEADS)
+        if self.num_tokens < 1 or self.knn < 1:
+            raise ValueError(f"num_tokens and knn must be >= 1; got {self.num_tokens}, {self.knn}")
+        if self.position_scale <= 0:
+            raise ValueError(f"position_scale must be > 0; got {self.position_scale}")
+        if self.global_head == "official" and self.sampling != "post":
+            raise ValueError(
+                "global_head='official' is the official post-sampling tokenizer + projector; "
+                "use sampling='post' with it"
+            )
+
+
+PAPER_TOKENS = PointTokenOptions()  # the defaults: the paper's tokenizer
+
+
+class PointTokenEncoder(nn.Module):
+    """A per-point backbone + the point tokenizer (`tokens`: PointTokenOptions): ACT tokens (B, S, dim) with 3D
+    sine positions, or one global feature for Diffusion Policy. With `global_head="official"`: `dp_projection`
+    (an extra per-point Linear, PointNet's 512 -> 96), the tokenizer at the backbone's width, `dp_widths`
+    per-token layers, max over seeds, 128-d."""
 
     def __init__(
         self,
@@ -127,32 +162,16 @@ class PointTokenEncoder(nn.Module):
         in_channels: int,
         output: str,
         dim: int = 512,
-        sampling: str = "post",
-        num_tokens: int = 2048,
-        knn: int = 16,
-        position_scale: float = 100.0,
-        pipeline: str = "plugin",
-        global_head: str = "maxpool",
+        tokens: PointTokenOptions = PAPER_TOKENS,
         dp_projection: int | None = None,
         dp_widths: tuple[int, ...] = (),
     ):
         super().__init__()
-        check_choice("sampling", sampling, SAMPLING)
-        check_choice("pipeline", pipeline, PIPELINES)
-        check_choice("global_head", global_head, GLOBAL_HEADS)
-        if num_tokens < 1 or knn < 1:
-            raise ValueError(f"num_tokens and knn must be >= 1; got {num_tokens}, {knn}")
-        if position_scale <= 0:
-            raise ValueError(f"position_scale must be > 0; got {position_scale}")
-        if global_head == "official" and sampling != "post":
-            raise ValueError(
-                "global_head='official' is the official post-sampling tokenizer + projector; "
-                "use sampling='post' with it"
-            )
-        self.output, self.sampling, self.num_tokens, self.knn = output, sampling, num_tokens, knn
-        self.position_scale, self.all_slots = position_scale, pipeline == "official"
+        sampling, pipeline = tokens.sampling, tokens.pipeline
+        self.output, self.sampling, self.num_tokens, self.knn = output, sampling, tokens.num_tokens, tokens.knn
+        self.position_scale, self.all_slots = tokens.position_scale, pipeline == "official"
         self.fps_start = FPS_START[pipeline]
-        self.global_head = global_head if output == "global" else None
+        self.global_head = tokens.global_head if output == "global" else None
         self.backbone = backbone
         width = backbone.out_channels
         official = pipeline == "official"

@@ -15,7 +15,9 @@ from __future__ import annotations
 from torch import Tensor, nn
 
 from lerobot_obsbench.encoders.point_tokenizer import (
+    PAPER_TOKENS,
     PointTokenEncoder,
+    PointTokenOptions,
     describe_point_tokens,
     masked_apply,
     norm_relu,
@@ -56,12 +58,7 @@ def build_pointnet(
     output: str,
     dim: int,
     point_features: str = "rgb+xyz",
-    sampling: str = "post",
-    num_tokens: int = 2048,
-    knn: int = 16,
-    position_scale: float = 100.0,
-    pipeline: str = "plugin",
-    global_head: str = "maxpool",
+    tokens: PointTokenOptions = PAPER_TOKENS,
 ) -> PointTokenEncoder:
     channels = input_channels(obs_space, point_features)
     return PointTokenEncoder(
@@ -69,12 +66,7 @@ def build_pointnet(
         channels,
         output,
         dim=dim,
-        sampling=sampling,
-        num_tokens=num_tokens,
-        knn=knn,
-        position_scale=position_scale,
-        pipeline=pipeline,
-        global_head=global_head,
+        tokens=tokens,
         dp_projection=DP_PROJECTION,
         dp_widths=DP_WIDTHS,
     )

@@ -3,7 +3,9 @@
 Each registered encoder states its contract:
 - the observation spaces it accepts (`make_encoder` refuses any other pair, listing the valid ones);
 - the keyword options its builder takes, read from the builder's signature (an unknown keyword is refused,
-  naming the accepted ones: a typo never passes silently);
+  naming the accepted ones: a typo never passes silently); a parameter whose default is a dataclass instance
+  is an option set shared by several encoders (the point tokenizer's): its fields are options of the encoder,
+  gathered back into one instance when it is built;
 - what it outputs, before anything is built (`encoder_output`): with `output="tokens"`, `(tokens (B, S, D),
   pos (B|1, S, D))` for ACT's transformer; with `output="global"`, one feature vector (B, F) for Diffusion
   Policy's conditioning;
@@ -14,9 +16,10 @@ Names are unique: registering a name twice is an error.
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from torch import nn
 
@@ -57,6 +60,8 @@ class EncoderInfo:
     defaults: dict
     pretrained: str = ""  # which pretrained weights `pretrained=` accepts; empty: trained from scratch only
     default_for: tuple[str, ...] = ()
+    # builder parameter -> the dataclass of the option set it takes (its fields are in `options`)
+    option_sets: dict[str, type] = field(default_factory=dict)
 
 
 _REGISTRY: dict[str, EncoderInfo] = {}
@@ -93,10 +98,29 @@ def register_encoder(
             taken = [i.name for i in _REGISTRY.values() if space in i.default_for]
             if taken:
                 raise ValueError(f"encoder {name!r}: {taken[0]!r} is already the default encoder of {space!r}")
-        options = tuple(params)[len(BUILD_ARGS) :]
-        defaults = {k: params[k].default for k in options if params[k].default is not inspect.Parameter.empty}
+        options, defaults, option_sets = [], {}, {}
+        for key in tuple(params)[len(BUILD_ARGS) :]:
+            default = params[key].default
+            if dataclasses.is_dataclass(default):  # an option set: its fields are the options
+                option_sets[key] = type(default)
+                fields = {f.name: getattr(default, f.name) for f in dataclasses.fields(default)}
+                options += fields
+                defaults.update(fields)
+                continue
+            options.append(key)
+            if default is not inspect.Parameter.empty:
+                defaults[key] = default
         _REGISTRY[name] = EncoderInfo(
-            name, tuple(spaces), summary, build, describe, options, defaults, pretrained, tuple(default_for)
+            name,
+            tuple(spaces),
+            summary,
+            build,
+            describe,
+            tuple(options),
+            defaults,
+            pretrained,
+            tuple(default_for),
+            option_sets,
         )
         return build
 
@@ -154,7 +178,14 @@ def _checked(name: str, obs_space: str, output: str, options: dict) -> EncoderIn
 
 def make_encoder(name: str, obs_space: str, output: str = "tokens", dim: int = 512, **options) -> nn.Module:
     """Build encoder `name` for `obs_space`; `options` are the encoder's own (`encoder_info(name).options`)."""
-    return _checked(name, obs_space, output, options).build(obs_space, output, dim, **options)
+    info = _checked(name, obs_space, output, options)
+    for key, option_set in info.option_sets.items():  # gather a shared option set's fields into one instance
+        names = {f.name for f in dataclasses.fields(option_set)}
+        options = {
+            **{k: v for k, v in options.items() if k not in names},
+            key: option_set(**{k: v for k, v in options.items() if k in names}),
+        }
+    return info.build(obs_space, output, dim, **options)
 
 
 def encoder_output(

@@ -13,7 +13,12 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from lerobot_obsbench.encoders.point_tokenizer import PointTokenEncoder, describe_point_tokens
+from lerobot_obsbench.encoders.point_tokenizer import (
+    PAPER_TOKENS,
+    PointTokenEncoder,
+    PointTokenOptions,
+    describe_point_tokens,
+)
 from lerobot_obsbench.encoders.pretrained import load_matching, read_state_dict
 from lerobot_obsbench.encoders.registry import register_encoder
 from lerobot_obsbench.schema import input_channels
@@ -74,14 +79,9 @@ def build_spunet(
     output: str,
     dim: int,
     point_features: str = "rgb+xyz",
-    sampling: str = "post",
-    num_tokens: int = 2048,
-    knn: int = 16,
+    tokens: PointTokenOptions = PAPER_TOKENS,
     voxel_size: float = 0.005,
     pretrained: str | None = None,
-    position_scale: float = 100.0,
-    pipeline: str = "plugin",
-    global_head: str = "maxpool",
 ) -> PointTokenEncoder:
     from lerobot_obsbench.encoders.sparse_unet import SpUNet  # spconv is needed from here on only
 
@@ -94,11 +94,6 @@ def build_spunet(
         channels,
         output,
         dim=dim,
-        sampling=sampling,
-        num_tokens=num_tokens,
-        knn=knn,
-        position_scale=position_scale,
-        pipeline=pipeline,
-        global_head=global_head,
+        tokens=tokens,
         dp_widths=DP_WIDTHS,
     )

@@ -6,8 +6,8 @@ Importing this package is cheap: ManiSkill itself is imported only when an env i
 import gymnasium as gym
 
 from lerobot_obsbench.envs import tasks  # noqa: F401  (registers every task module)
+from lerobot_obsbench.envs.base_task import TASKS, TaskError, eval_seeds, task_spec
 from lerobot_obsbench.envs.configuration import ObsBenchEnvConfig
-from lerobot_obsbench.envs.task import TASKS, TaskError, eval_seeds, task_spec
 
 for _name, _task in TASKS.items():
     if f"obsbench/{_name}" not in gym.registry:

@@ -8,9 +8,9 @@ from dataclasses import dataclass, field, make_dataclass
 from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
 
+from lerobot_obsbench.envs.base_task import TASKS, task_spec
 from lerobot_obsbench.envs.maniskill import ACTION_DIMS, CONTROL_FPS, CONTROL_MODES, DEFAULT_CONTROL_MODE, STATE_DIM
 from lerobot_obsbench.envs.perturbations import parse_perturbation
-from lerobot_obsbench.envs.task import TASKS, task_spec
 from lerobot_obsbench.schema import ACTION_KEY, ENV_STATE_KEY, STATE_KEY, image_key
 
 

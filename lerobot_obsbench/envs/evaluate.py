@@ -17,8 +17,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from lerobot_obsbench.envs.base_task import eval_seeds, task_spec
 from lerobot_obsbench.envs.maniskill import CONTROL_FPS, DEFAULT_CONTROL_MODE, STATE_DIM, ObsBenchEnv
-from lerobot_obsbench.envs.task import eval_seeds, task_spec
 from lerobot_obsbench.outputs import write_json_atomic, write_text_atomic
 from lerobot_obsbench.policies.loading import load_policy
 from lerobot_obsbench.schema import check_compatibility

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from lerobot_obsbench.envs.task import first
+from lerobot_obsbench.envs.base_task import first
 
 POS_SCALE = 0.1
 ROT_SCALE = 0.1

@@ -22,8 +22,8 @@ import os
 import gymnasium as gym
 import numpy as np
 
+from lerobot_obsbench.envs.base_task import TaskError, asset_help, first, missing_assets, task_spec, to_numpy
 from lerobot_obsbench.envs.perturbations import apply_scene_perturbation, camera_overrides, parse_perturbation
-from lerobot_obsbench.envs.task import TaskError, asset_help, first, missing_assets, task_spec, to_numpy
 from lerobot_obsbench.errors import ObsBenchError
 from lerobot_obsbench.schema import (
     ENV_STATE_KEY,
@@ -40,6 +40,7 @@ from lerobot_obsbench.schema import (
 
 # ManiSkill's tabletop tasks step their controllers at 20 Hz: the rate demonstrations are recorded at.
 CONTROL_FPS = 20
+ROBOT_TYPE = "panda"  # every task's robot, as LeRobot datasets record it (robot_type)
 # Controller -> action size; the paper's is the first (Δpos, Δrot axis-angle, gripper).
 ACTION_DIMS = {"pd_ee_delta_pose": 7, "pd_joint_pos": 8}
 CONTROL_MODES = tuple(ACTION_DIMS)

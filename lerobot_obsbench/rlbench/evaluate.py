@@ -27,7 +27,7 @@ from lerobot_obsbench.outputs import write_json_atomic
 from lerobot_obsbench.policies.env_passthrough import frame_to_policy_batch
 from lerobot_obsbench.policies.loading import load_policy, predict_chunk
 from lerobot_obsbench.rlbench.format import camera_views, decode_action, encode_pose, low_dim
-from lerobot_obsbench.rlbench.tasks import RLBenchTask
+from lerobot_obsbench.rlbench.paper_tasks import RLBenchTask
 from lerobot_obsbench.schema import (
     ENV_STATE_KEY,
     STATE_KEY,

@@ -1,5 +1,5 @@
 """One module per OBSBench task. Importing this package registers every task module in it (so adding a task
-is adding one module here; see `lerobot_obsbench.envs.task`)."""
+is adding one module here; see `lerobot_obsbench.envs.base_task`)."""
 
 import importlib
 import pkgutil

@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from lerobot_obsbench.envs.base_task import Task, register_task
 from lerobot_obsbench.envs.experts import OPEN, Phase, WaypointExpert, above, grasp_yaw, top_down
-from lerobot_obsbench.envs.task import Task, register_task
 
 
 class LiftPegUprightExpert(WaypointExpert):

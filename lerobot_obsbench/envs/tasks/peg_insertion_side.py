@@ -18,8 +18,8 @@ ManiSkill's motion planner reaches ~65%.
 
 from __future__ import annotations
 
+from lerobot_obsbench.envs.base_task import Task, first, register_task
 from lerobot_obsbench.envs.experts import InsertionExpert
-from lerobot_obsbench.envs.task import Task, first, register_task
 
 PEG = "peg"
 

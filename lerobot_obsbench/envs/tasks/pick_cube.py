@@ -14,8 +14,8 @@ xy in [-0.1, 0.1]^2 and its height 0..0.3 m above the cube's.
 
 from __future__ import annotations
 
+from lerobot_obsbench.envs.base_task import Task, first, register_task
 from lerobot_obsbench.envs.experts import CLOSED, OPEN, Phase, WaypointExpert, above
-from lerobot_obsbench.envs.task import Task, first, register_task
 
 
 class PickCubeExpert(WaypointExpert):

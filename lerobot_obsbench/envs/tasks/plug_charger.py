@@ -13,8 +13,8 @@ weak; prefer `obsbench import-h5` of official demonstrations.
 
 from __future__ import annotations
 
+from lerobot_obsbench.envs.base_task import Task, register_task
 from lerobot_obsbench.envs.experts import InsertionExpert
-from lerobot_obsbench.envs.task import Task, register_task
 
 CHARGER = "charger"
 

@@ -24,8 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from lerobot_obsbench.envs.base_task import Task, first, register_task
 from lerobot_obsbench.envs.experts import CLOSED, Phase, WaypointExpert, above
-from lerobot_obsbench.envs.task import Task, first, register_task
 
 
 class PushCubeExpert(WaypointExpert):

@@ -13,8 +13,8 @@ Sub-success: `grasp` (the red cube was held at some step).
 
 from __future__ import annotations
 
+from lerobot_obsbench.envs.base_task import Task, first, register_task
 from lerobot_obsbench.envs.experts import CLOSED, OPEN, Phase, WaypointExpert, above
-from lerobot_obsbench.envs.task import Task, first, register_task
 
 
 class StackCubeExpert(WaypointExpert):

@@ -13,7 +13,7 @@ evaluate with `--env.asset_dir=ASSETS`.
 
 from __future__ import annotations
 
-from lerobot_obsbench.envs.task import Task, register_task
+from lerobot_obsbench.envs.base_task import Task, register_task
 
 
 @register_task

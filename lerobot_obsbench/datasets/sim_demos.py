@@ -1,7 +1,7 @@
 """Scripted demonstrations -> a LeRobotDataset in the OBSBench schema, resumable after a kill.
 
-Each attempted episode is simulated, and successful ones are written as one compressed `.npz` file in
-`OUT/.episodes/` (atomically: written under a temporary name, then renamed); failed attempts are logged in
+Each attempted episode is simulated, and successful ones are staged as one compressed `.npz` file in
+`OUT/.episodes/` (`datasets.staging`: written under a temporary name, then renamed); failed attempts are logged in
 `OUT/.episodes/attempts.jsonl`. A rerun skips every seed already attempted, so a killed run loses at most the
 episode in flight and never repeats one. Once N episodes exist, the LeRobotDataset is (re)assembled from the
 episode files in seed order, then the staging files are removed; a kill during assembly just redoes it.
@@ -10,7 +10,7 @@ episode files in seed order, then the staging files are removed; a kill during a
 from __future__ import annotations
 
 import json
-import os
+import re
 import shutil
 import time
 from pathlib import Path
@@ -18,20 +18,25 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from lerobot_obsbench.envs.maniskill import CONTROL_FPS
-from lerobot_obsbench.envs.task import DEMO_SEED_START, task_spec
-from lerobot_obsbench.locks import LOCK_NAME, exclusive_output
-from lerobot_obsbench.schema import ACTION_KEY, DEPTH_PREFIX, IMAGE_PREFIX, MIN_IMAGE_SIZE, env_observation_to_frame
+from lerobot_obsbench.datasets.staging import (
+    STAGING,
+    assemble,
+    drop_unfinished,
+    prepare_dataset_out,
+    save_episode_file,
+    settings_differences,
+)
+from lerobot_obsbench.envs.base_task import DEMO_SEED_START, task_spec
+from lerobot_obsbench.envs.maniskill import CONTROL_FPS, ROBOT_TYPE
+from lerobot_obsbench.locks import exclusive_output
+from lerobot_obsbench.schema import ACTION_KEY, MIN_IMAGE_SIZE, env_observation_to_frame
 
-STAGING = ".episodes"
 ATTEMPTS_LOG = "attempts.jsonl"
-TMP_SUFFIX = ".tmp.npz"  # an episode file being written; never read as an episode
 SIDECAR = "obsbench_demos.json"
-SETTINGS = "settings.json"  # in STAGING: the settings of an interrupted recording
-DATASET_ENTRIES = ("meta", "data", "videos", "images", ".assembling")
+EPISODE_FILE = re.compile(r"seed_(\d+)\.npz")
 
 
-def rollout(env, spec, seed: int) -> tuple[bool, dict[str, np.ndarray]]:
+def expert_episode(env, spec, seed: int) -> tuple[bool, dict[str, np.ndarray]]:
     """One episode of the task's expert; returns (success, per-key stacked frames incl. `action`)."""
     obs, _ = env.reset(seed=seed)
     expert = spec.make_expert(env)
@@ -55,12 +60,11 @@ def rollout(env, spec, seed: int) -> tuple[bool, dict[str, np.ndarray]]:
 def _attempted(staging: Path) -> dict[int, bool]:
     """Seeds already attempted (seed -> success), from the staged episode files and the attempts log.
 
-    A kill can leave a half-written `seed_N.tmp.npz` (deleted: that episode is simulated again) and a truncated
+    A kill can leave a half-written episode file (deleted: that episode is simulated again) and a truncated
     last log line (dropped, and the log rewritten so the next line starts clean: that attempt is redone).
     """
-    for leftover in staging.glob(f"*{TMP_SUFFIX}"):
-        leftover.unlink()
-    done = {int(p.name.removeprefix("seed_").removesuffix(".npz")): True for p in staging.glob("seed_*.npz")}
+    drop_unfinished(staging)
+    done = {int(m[1]): True for p in staging.iterdir() if (m := EPISODE_FILE.fullmatch(p.name))}
     log = staging / ATTEMPTS_LOG
     if log.is_file():
         kept, dropped = [], 0
@@ -74,58 +78,6 @@ def _attempted(staging: Path) -> dict[int, bool]:
         if dropped:
             log.write_text("".join(f"{line}\n" for line in kept))
     return done
-
-
-def _features(sample: dict[str, np.ndarray]) -> dict:
-    feats = {}
-    for key, value in sample.items():
-        shape = tuple(value.shape[1:])
-        if key.startswith(IMAGE_PREFIX):
-            feats[key] = {"dtype": "video", "shape": shape, "names": ["height", "width", "channels"]}
-        elif key.startswith(DEPTH_PREFIX):
-            feats[key] = {"dtype": "uint16", "shape": shape, "names": ["height", "width", "channels"]}
-        else:
-            feats[key] = {"dtype": "float32", "shape": shape, "names": None}
-    return feats
-
-
-def save_episode_file(path: Path, frames: dict[str, np.ndarray]) -> None:
-    """Write one staged episode atomically (a kill leaves either the whole file or none)."""
-    tmp = path.with_name(path.stem + TMP_SUFFIX)
-    np.savez_compressed(tmp, **frames)
-    os.replace(tmp, path)
-
-
-def assemble(
-    out: Path,
-    episode_files: list[Path],
-    task_text: str | list[str],
-    repo_id: str,
-    fps: int = CONTROL_FPS,
-    robot_type: str = "panda",
-) -> None:
-    """(Re)write the LeRobotDataset in `out` from staged episode files, in the given order; `task_text` is
-    LeRobot's task string, one for all episodes or one per episode."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
-    for name in DATASET_ENTRIES:  # leftovers of an interrupted assembly
-        path = out / name
-        if path.is_dir():
-            shutil.rmtree(path)
-    tmp_root = out / ".assembling"
-    episodes = [dict(np.load(f)) for f in episode_files]
-    ds = LeRobotDataset.create(
-        repo_id=repo_id, fps=fps, features=_features(episodes[0]), root=tmp_root, robot_type=robot_type, use_videos=True
-    )
-    texts = [task_text] * len(episodes) if isinstance(task_text, str) else task_text
-    for ep, text in tqdm(zip(episodes, texts, strict=True), desc="writing dataset", unit="ep", total=len(episodes)):
-        for t in range(len(ep[ACTION_KEY])):
-            ds.add_frame({**{k: v[t] for k, v in ep.items()}, "task": text})
-        ds.save_episode()
-    ds.finalize()
-    for entry in tmp_root.iterdir():
-        entry.rename(out / entry.name)
-    tmp_root.rmdir()
 
 
 def record_demos(
@@ -171,46 +123,6 @@ def record_demos(
         )
 
 
-def settings_differences(found: dict, wanted: dict) -> str:
-    """The settings of `wanted` that `found` does not share, as "name X there, Y asked" (empty: none)."""
-    return ", ".join(f"{k} {found.get(k)!r} there, {v!r} asked" for k, v in wanted.items() if found.get(k) != v)
-
-
-def prepare_dataset_out(out: Path, settings: dict, sidecar: str, finished_differences, overwrite: bool) -> None:
-    """Before a recording or import writes dataset folder `out` (locked by the caller): keep the same work —
-    finished (its `sidecar` file, compared by `finished_differences(sidecar contents)`, empty when the same) or
-    interrupted (STAGING's settings file, compared with `settings`) —, refuse anything else with what is there
-    and the choices, or with `overwrite` delete it; then record `settings` for a later resume to match."""
-    present = sorted(p.name for p in out.iterdir() if p.name != LOCK_NAME)
-    choice = "--overwrite to replace it, or another --out"
-    if present and overwrite:
-        for name in present:
-            path = out / name
-            shutil.rmtree(path) if path.is_dir() and not path.is_symlink() else path.unlink()
-    elif (out / sidecar).is_file():
-        different = finished_differences(json.loads((out / sidecar).read_text()))
-        if different:
-            raise FileExistsError(
-                f"--out {out} already holds a dataset made with other settings ({different}); {choice}"
-            )
-        return
-    elif (out / STAGING / SETTINGS).is_file():
-        different = settings_differences(json.loads((out / STAGING / SETTINGS).read_text()), settings)
-        if different:
-            raise FileExistsError(
-                f"--out {out} holds an interrupted run with other settings ({different}); rerun with its settings "
-                f"to resume it, {choice}"
-            )
-    elif present:
-        shown = ", ".join(present[:5]) + (", ..." if len(present) > 5 else "")
-        raise FileExistsError(
-            f"--out {out} is not empty ({shown}) and holds nothing this command made; give a new or empty folder, "
-            "or --overwrite to replace what is there"
-        )
-    (out / STAGING).mkdir(parents=True, exist_ok=True)
-    (out / STAGING / SETTINGS).write_text(json.dumps(settings) + "\n")
-
-
 def _record_locked(spec, episodes, out, image_size, cameras, seed_start, max_attempts, repo_id, keep_staging) -> dict:
     from lerobot_obsbench.envs.maniskill import ObsBenchEnv
 
@@ -235,7 +147,7 @@ def _record_locked(spec, episodes, out, image_size, cameras, seed_start, max_att
             if seed in attempted:
                 seed += 1
                 continue
-            ok, frames = rollout(env, spec, seed)
+            ok, frames = expert_episode(env, spec, seed)
             if ok:
                 save_episode_file(staging / f"seed_{seed}.npz", frames)
                 successes.append(seed)
@@ -254,7 +166,12 @@ def _record_locked(spec, episodes, out, image_size, cameras, seed_start, max_att
         env.close()
     seeds = sorted(successes)[:episodes]
     assemble(
-        out, [staging / f"seed_{s}.npz" for s in seeds], spec.description, repo_id=repo_id or f"local/obsbench_{task}"
+        out,
+        [staging / f"seed_{s}.npz" for s in seeds],
+        spec.description,
+        repo_id=repo_id or f"local/obsbench_{task}",
+        fps=CONTROL_FPS,
+        robot_type=ROBOT_TYPE,
     )
     tried = len(attempted)
     info = {

@@ -1,4 +1,5 @@
-"""Run a trained checkpoint on a real robot for N episodes, the operator judging each (README: Real robot).
+"""`obsbench rollout`: a trained checkpoint on a real robot for N episodes, the operator judging each
+(docs/real-robot.md).
 
 Per episode: the operator starts it, the policy acts at `fps` for at most `episode_time_s` (ACT checkpoints keep
 their temporal ensembling: one new chunk per step, averaged; or, with `async_inference`, the next chunk is
@@ -12,8 +13,10 @@ names the options when the policy could not keep the rate.
 
 from __future__ import annotations
 
+import argparse
 import json
 import logging
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -24,32 +27,45 @@ import torch
 from lerobot.policies.act.modeling_act import ACTPolicy
 from lerobot.robots import RobotConfig
 
+from lerobot_obsbench.commands import common
 from lerobot_obsbench.policies.env_passthrough import frame_to_policy_batch
 from lerobot_obsbench.policies.loading import check_policy_path, load_policy, predict_chunk
 from lerobot_obsbench.robots.checks import RobotSetupError, require_calibrated
 from lerobot_obsbench.robots.frames import action_dict, dataset_features, motor_keys, observation_frame
+from lerobot_obsbench.robots.real_tasks import real_task
 from lerobot_obsbench.robots.realtime import AsyncChunks, StepTimer
-from lerobot_obsbench.robots.tasks import real_task
 from lerobot_obsbench.schema import ACTION_KEY, DEPTH_PREFIX, IMAGE_PREFIX, STATE_KEY
 from lerobot_obsbench.stats import success_summary
 
 logger = logging.getLogger(__name__)
 
+NAME = "rollout"
+HELP = "run a checkpoint on a real robot, the operator judging each episode (success rate with its 95% interval)"
+EXAMPLE = """obsbench rollout --robot.type=obsbench_koch_follower --robot.port=/dev/ttyACM0 --robot.id=follower \\
+    --policy_path=outputs/train/koch_pick/checkpoints/last/pretrained_model --task=pick_cube"""
+INTERRUPTED = "the episodes' videos are kept in --out; results.json is written once every episode is judged"
+DEVICE_OPTIONS = ("robot",)
+# LeRobot's device factories wrap what stops them (a missing SDK, a bad port) in ValueError
+EXPECTED_ERRORS = (ValueError,)
+
 
 @dataclass
 class RolloutConfig:
-    """`obsbench rollout --robot.type=... --policy_path=CKPT --task=pick_cube`"""
+    """What `obsbench rollout` runs (the robot comes from `--robot.*`)."""
 
-    robot: RobotConfig
     # The checkpoint's pretrained_model directory (from lerobot-train).
     policy_path: str
     # One of the paper's real tasks (sets episodes and episode time), or None to set them here.
     task: str | None = None
+    # Episodes to run (a --task sets it).
     episodes: int = 20
+    # The longest an episode runs, in seconds (a --task sets it).
     episode_time_s: float = 30.0
+    # Control rate (Hz): one observation and one action per step.
     fps: int = 30
     # Seconds to move back to the rest pose after each episode.
     rest_time_s: float = 3.0
+    # Torch device of the policy (cpu, cuda, mps).
     device: str = "cpu"
     # Compute the next action chunk in a background thread while the arm executes the current one (ACT
     # checkpoints; replaces temporal ensembling): a policy slower than 1 / fps then acts on a slightly older plan
@@ -232,12 +248,31 @@ def _keyboard_events() -> dict:
     return init_keyboard_listener()[1]
 
 
-def main(argv: list[str] | None = None) -> int:
-    import draccus
+@dataclass
+class RobotDevice:
+    """`--robot.*`: LeRobot's own robot config."""
+
+    robot: RobotConfig
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    common.add_config_options(p, RolloutConfig)
+
+
+def run(args: argparse.Namespace) -> int:
     from lerobot.robots.utils import make_robot_from_config
 
-    config = draccus.parse(RolloutConfig, args=argv)
+    robot = common.device_configs(RobotDevice, args.device_options, NAME).robot
+    config = common.config_from_args(RolloutConfig, args)
     check_policy_path(config.policy_path)  # before the robot's ports and cameras are touched
-    result = rollout(make_robot_from_config(config.robot), config)
+    result = rollout(make_robot_from_config(robot), config)
     print(f"{result['successes']}/{result['episodes']} successes, 95% CI {result['ci95']}; {config.out}/results.json")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return common.main(sys.modules[__name__], argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,11 +1,12 @@
-"""Teleoperated demonstrations on a real robot -> a LeRobotDataset in the same schema simulation writes.
+"""`obsbench record`: teleoperated demonstrations on a real robot -> a LeRobotDataset in the same schema simulation
+writes.
 
 Built from LeRobot's pieces (robot / teleoperator factories, its keyboard controls, `LeRobotDataset.create` /
 `add_frame` / `save_episode`, video encoding, `aggregate_datasets`). LeRobot's own `lerobot-record` cannot write
 the schema: it turns every tuple feature into a video, so depth (H, W, 1) uint16, K (3, 3) and cam2world (4, 4)
 fail.
 
-Resumable like `obsbench demos`: each episode becomes its own finalized one-episode dataset in
+Resumable like `obsbench demos` (`datasets.staging`): each episode becomes its own finalized one-episode dataset in
 `ROOT/.episodes/episode_NNNN` (LeRobot v3 keeps a parquet writer open until `finalize()`, so a kill would lose an
 open multi-episode dataset), written under a temporary name and renamed once complete. A rerun skips the
 episodes already there; when all exist they are aggregated into ROOT. A kill loses at most the episode in flight.
@@ -16,9 +17,11 @@ after saving what was recorded.
 
 from __future__ import annotations
 
+import argparse
 import json
 import logging
 import shutil
+import sys
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -27,12 +30,22 @@ import numpy as np
 from lerobot.robots import RobotConfig
 from lerobot.teleoperators import TeleoperatorConfig
 
+from lerobot_obsbench.commands import common
+from lerobot_obsbench.datasets.staging import STAGING, commit, drop_unfinished, temporary
 from lerobot_obsbench.locks import exclusive_output
 from lerobot_obsbench.robots.checks import RobotSetupError, require_calibrated
 from lerobot_obsbench.robots.frames import action_values, dataset_features, motor_keys, observation_frame
 from lerobot_obsbench.schema import ACTION_KEY
 
-STAGING = ".episodes"
+NAME = "record"
+HELP = "teleoperated demonstrations on a real robot, with depth, into the schema (resumable)"
+EXAMPLE = """obsbench record --robot.type=obsbench_koch_follower --robot.port=/dev/ttyACM0 --robot.id=follower \\
+    --teleop.type=koch_leader --teleop.port=/dev/ttyACM1 --teleop.id=leader \\
+    --dataset.root=data/koch_pick_cube --dataset.task="pick up the cube" --dataset.num_episodes=50"""
+INTERRUPTED = "every saved episode is kept in --dataset.root; run the same command to go on"
+DEVICE_OPTIONS = ("robot", "teleop")
+# LeRobot's device factories wrap what stops them (a missing SDK, a bad port) in ValueError
+EXPECTED_ERRORS = (ValueError,)
 SIDECAR = "obsbench_recording.json"
 
 
@@ -46,15 +59,19 @@ class RecordingConfig:
     task: str
     # Dataset id (used for the Hub with --dataset.push_to_hub).
     repo_id: str = "local/obsbench_real"
+    # Demonstrations to record (the paper: 45 per real task).
     num_episodes: int = 45
-    # Seconds of one demonstration, and of the reset between two (teleoperated, not recorded).
+    # Seconds of one demonstration.
     episode_time_s: float = 30.0
+    # Seconds of the reset between two demonstrations (teleoperated, not recorded).
     reset_time_s: float = 10.0
+    # Control and recording rate (Hz).
     fps: int = 30
     # PNG writer threads per camera while recording (LeRobot's default); videos are encoded between episodes.
     image_writer_threads_per_camera: int = 4
     # Video codec for the colour streams (LeRobot's default; h264 encodes faster on small CPUs).
     vcodec: str = "libsvtav1"
+    # Upload the dataset to the Hub as --dataset.repo_id once every episode is recorded, privately or not.
     push_to_hub: bool = False
     private: bool = False
     # Keep the per-episode datasets after aggregation.
@@ -66,12 +83,11 @@ class RecordingConfig:
 
 
 @dataclass
-class RecordConfig:
-    """`obsbench record --robot.type=... --teleop.type=... --dataset.root=... --dataset.task=...`"""
+class Devices:
+    """`--robot.*` and `--teleop.*`: LeRobot's own device configs."""
 
     robot: RobotConfig
     teleop: TeleoperatorConfig
-    dataset: RecordingConfig
 
 
 @dataclass
@@ -174,8 +190,7 @@ def _record_locked(robot, teleop, config: RecordingConfig, events: dict | None) 
         features = dataset_features(robot)
         robot.get_observation()  # fails now, not mid-episode, on a missing camera calibration
         done = _complete_episodes(staging)
-        for leftover in staging.glob("*.tmp"):
-            shutil.rmtree(leftover)
+        drop_unfinished(staging)
         _check_same_features(done, features)
         cameras = sum(1 for f in features.values() if f["dtype"] == "video")
         timings = json.loads((staging / "timings.json").read_text()) if (staging / "timings.json").is_file() else []
@@ -185,7 +200,8 @@ def _record_locked(robot, teleop, config: RecordingConfig, events: dict | None) 
                 print(f"reset the scene ({config.reset_time_s:.0f} s, right arrow to skip)")
                 control_loop(robot, teleop, config.reset_time_s, config.fps, events)
             print(f"recording episode {index + 1}/{config.num_episodes}")
-            tmp = staging / f"episode_{index:04d}.tmp"
+            episode = staging / f"episode_{index:04d}"
+            tmp = temporary(episode)
             dataset = LeRobotDataset.create(
                 repo_id=config.repo_id,
                 fps=config.fps,
@@ -205,7 +221,7 @@ def _record_locked(robot, teleop, config: RecordingConfig, events: dict | None) 
                 continue
             dataset.save_episode()
             dataset.finalize()  # also waits for and stops the image writer
-            tmp.rename(staging / f"episode_{index:04d}")
+            commit(episode)
             timings.append({"episode": index, **asdict(timing), "fps": round(timing.fps, 2)})
             (staging / "timings.json").write_text(json.dumps(timings, indent=1))
             logging.info(f"episode {index}: {timing.frames} frames at {timing.fps:.1f} fps, {timing.overruns} late")
@@ -281,12 +297,31 @@ def _keyboard_events() -> dict:
     return init_keyboard_listener()[1]
 
 
-def main(argv: list[str] | None = None) -> int:
-    import draccus
-    from lerobot.robots.utils import make_robot_from_config
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    common.add_config_options(p, RecordingConfig, "dataset")
+
+
+def configs(args: argparse.Namespace) -> tuple[Devices, RecordingConfig]:
+    """The robot and teleoperator configs (LeRobot's parser) and the recording's, from the parsed arguments."""
     from lerobot.teleoperators import koch_leader  # noqa: F401  (registers --teleop.type=koch_leader, one arm)
+
+    return common.device_configs(Devices, args.device_options, NAME), common.config_from_args(
+        RecordingConfig, args, "dataset"
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    from lerobot.robots.utils import make_robot_from_config
     from lerobot.teleoperators.utils import make_teleoperator_from_config
 
-    config = draccus.parse(RecordConfig, args=argv)
-    record(make_robot_from_config(config.robot), make_teleoperator_from_config(config.teleop), config.dataset)
+    devices, config = configs(args)
+    record(make_robot_from_config(devices.robot), make_teleoperator_from_config(devices.teleop), config)
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return common.main(sys.modules[__name__], argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

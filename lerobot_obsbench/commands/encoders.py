@@ -1,0 +1,35 @@
+"""`obsbench encoders`: list the registered encoders and the observation spaces each accepts."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from lerobot_obsbench.commands import common
+from lerobot_obsbench.schema import OBS_SPACES
+
+NAME = "encoders"
+HELP = "list registered encoders and the observation spaces they accept"
+EXAMPLE = """obsbench encoders --obs-space pointcloud"""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--obs-space", choices=OBS_SPACES, help="only encoders accepting this space")
+
+
+def run(args: argparse.Namespace) -> int:
+    from lerobot_obsbench.encoders import available_encoders, encoder_info
+
+    for name in available_encoders(args.obs_space):
+        info = encoder_info(name)
+        weights = f"; pretrained: {info.pretrained}" if info.pretrained else ""
+        print(f"{name:10s} spaces: {', '.join(info.spaces):32s} {info.summary}{weights}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return common.main(sys.modules[__name__], argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,100 @@
+"""`obsbench report`: paper-style tables (Markdown + HTML), plots and a JSON summary from results.jsonl and/or
+one of the paper's published tables (`bench.report`)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from lerobot_obsbench.commands import common
+from lerobot_obsbench.errors import UsageError
+from lerobot_obsbench.outputs import check_output_file, check_output_folder, write_text_atomic
+
+NAME = "report"
+HELP = "paper-style tables (Markdown + HTML) and plots from results.jsonl and/or a published table"
+EXAMPLE = """obsbench report outputs/bench/quick/results.jsonl --json outputs/bench/quick/summary.json"""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from lerobot_obsbench.bench.report import CHECKPOINT_CHOICES, published_tables
+
+    p.add_argument("results", type=Path, nargs="?", default=None, help="results.jsonl written by `obsbench run`")
+    p.add_argument(
+        "--table",
+        default=None,
+        help="published table: a CSV (rows = tasks, columns = methods, values = success rates in [0, 1]) or the "
+        f"name of one of the paper's tables shipped with the plugin: {', '.join(published_tables())}",
+    )
+    p.add_argument(
+        "--checkpoint",
+        default="best",
+        choices=CHECKPOINT_CHOICES,
+        help="which checkpoint's test "
+        "evaluations the tables show: best on the validation seeds (where a run has one) or last",
+    )
+    p.add_argument("--out", type=Path, default=None, help="report directory (default: next to the results)")
+    p.add_argument("--json", type=Path, default=None, help="write mean_sr and mean_rank per method here")
+    p.add_argument("--title", default="OBSBench report")
+    p.add_argument(
+        "--reference",
+        default=None,
+        help="a column label (as the tables print it): every method's probability of improvement over it is added "
+        "beside the one over its blind control",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    import json
+
+    from lerobot_obsbench.bench.report import (
+        ReportError,
+        build_report,
+        markdown_table,
+        read_published,
+        resolve_table,
+        summary_json,
+        write_report,
+    )
+    from lerobot_obsbench.bench.results import read_results
+
+    if args.results is None and args.table is None:
+        raise UsageError("give a results file (results.jsonl) and/or --table FILE.csv")
+    if args.results is not None and not args.results.is_file():
+        raise ReportError(f"results file {args.results} not found (`obsbench run` writes OUT/results.jsonl)")
+    out = args.out or (args.results.parent / "report" if args.results else Path("report"))
+    check_output_folder(out, "--out")
+    if args.json:
+        check_output_file(args.json, "--json", overwrite=True)  # a summary is regenerated, like the report
+    records = read_results(args.results) if args.results else []
+    if args.results and not records:
+        print(f"warning: no readable records in {args.results}", file=sys.stderr)
+    table = resolve_table(args.table) if args.table else None
+    published = read_published(table) if table else None
+    report = build_report(
+        records,
+        published,
+        published_name=table.stem if table else "published",
+        checkpoint=args.checkpoint,
+        reference=args.reference,
+    )
+    paths = write_report(report, out, title=args.title)
+    heading, (header, rows) = report["sections"][0]
+    print(f"{heading}\n{markdown_table(header, rows)}")
+    for warning in report["warnings"]:
+        print(f"note: {warning}")
+    for source, methods in report["summary"].items():
+        for method, s in sorted(methods.items(), key=lambda kv: kv[1]["mean_rank"]):
+            print(f"{source:9s} {method:45s} Mean S.R. {s['mean_sr']:.2f}  Mean Rank {s['mean_rank']:.2f}")
+    if args.json:
+        write_text_atomic(args.json, json.dumps(summary_json(report), indent=2) + "\n")
+    print(f"report: {paths['markdown']}, {paths['html']}" + (f"; summary: {args.json}" if args.json else ""))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return common.main(sys.modules[__name__], argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
