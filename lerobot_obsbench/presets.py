@@ -1,11 +1,11 @@
 """Named hyper-parameter presets, as `--policy.*` overrides for stock `lerobot-train`.
 
-- `paper`: the paper's protocol as its official code runs it (the README's
-  "Differences from the paper" lists what stays different and why): the config defaults' model sizes, plus
+- `paper`: the paper's protocol as its official code runs it (docs/paper-differences.md
+  lists what stays different and why): the config defaults' model sizes, plus
   ACT's MSE loss and raw-metre point positions, 224 px image inputs (49 ResNet tokens), zero-started extra stem
   channels, the official depth / xyz scaling and point-sampling details, Diffusion Policy's official point-cloud
   head and weight-decay exemptions, gradient clipping at 0.5 and the per-policy OneCycle warm-up. Needs a GPU.
-- `cpu`: small models that train in minutes on a 2-core CPU (README main job): ResNet-18 instead of ResNet-50
+- `cpu`: small models that train in minutes on a 2-core CPU (the main job, `make main`): ResNet-18 instead of ResNet-50
   for images, 128 point tokens, DP3 on xyz scaled to the crop box (DP3's own setting). Not the paper's setting:
   results from it are never a reproduction.
 - `tiny`: the smallest sizes that still exercise every code path (tests).
@@ -39,7 +39,7 @@ PRESETS: dict[str, dict[tuple[str, str], dict[str, object]]] = {
         **{(ACT, enc): {"position_scale": 1.0} for enc in PAPER_POINT_ENCODERS},
         **{(DP, enc): {"dp_point_head": "official"} for enc in PAPER_POINT_ENCODERS},
     },
-    # The paper's real-robot set-up (ACT, lr 5e-5, ResNet-50 / PointNet, two RealSense cameras; README: Real robot):
+    # The paper's real-robot set-up (ACT, lr 5e-5, ResNet-50 / PointNet, two RealSense cameras; docs/real-robot.md):
     # crop boxes in the ChArUco board's world frame (z up), jittered by ±1 cm in training.
     "real-one-arm": {
         (ACT, "all"): {"chunk_size": 20, "optimizer_lr": 5e-5},

@@ -182,7 +182,7 @@ STOCK_DEPTH_SUFFIX = "_depth"
 ATTACH_CALIBRATION_HINT = (
     "attach the camera's calibration to the dataset first: obsbench attach-calibration DATASET --camera {cam} "
     "(--from-recording FILE.bag | --serial SERIAL | --from-json FILE) --cam2world FILE "
-    "(README: Datasets recorded by stock lerobot-record)"
+    "(docs/real-robot.md: datasets recorded by stock lerobot-record)"
 )
 
 

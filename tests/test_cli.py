@@ -197,3 +197,29 @@ def test_train_front_end_speaks_the_brief_and_names_the_missing_dataset(tiny_dat
         "no dataset at data/stackcube: record it with `obsbench demos --task StackCube-v1 --episodes 100 --out "
         "data/stackcube`" in capsys.readouterr().err
     )
+
+
+def test_every_command_has_its_own_module_whose_example_parses_and_shows_in_help(capsys):
+    """Each command is a module of lerobot_obsbench.commands with its own main; its --help ends with an example,
+    and that example parses through the same parser (a renamed flag breaks here, not in a reader's terminal)."""
+    import importlib
+    import shlex
+
+    from lerobot_obsbench.cli import build_parser
+    from lerobot_obsbench.commands import COMMANDS, common
+
+    parser = build_parser()
+    subparsers = parser._subparsers._group_actions[0].choices
+    assert sorted(subparsers) == sorted(name.replace("_", "-") for name in COMMANDS)
+    for module_name in COMMANDS:
+        command = importlib.import_module(f"lerobot_obsbench.commands.{module_name}")
+        assert command.NAME == module_name.replace("_", "-") and callable(command.main)
+        with pytest.raises(SystemExit) as stop:
+            command.main(["--help"])
+        assert stop.value.code == 0
+        shown = capsys.readouterr().out
+        assert f"usage: obsbench {command.NAME}" in shown and "example:\n  obsbench " + command.NAME in shown
+        argv = shlex.split(command.EXAMPLE.replace("\\\n", " "))
+        assert argv[:2] == ["obsbench", command.NAME]
+        args = common.parse(parser, argv[1:])
+        assert args.command is command

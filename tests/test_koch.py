@@ -207,7 +207,8 @@ def test_stock_command_lines_parse_the_plugin_types(tmp_path):
     # obsbench's own commands: argparse options, the device options handed to LeRobot's configs
     devices, recording = record.configs(common.parse(build_parser(), ["record", *robot, *teleop, *dataset]))
     assert recording.num_episodes == 50 and recording.task == "fold the cloth"
-    assert devices.robot.right_arm_config.port == "/dev/ttyACM1" and devices.teleop.left_arm_config.port == "/dev/ttyACM2"
+    assert devices.robot.right_arm_config.port == "/dev/ttyACM1"
+    assert devices.teleop.left_arm_config.port == "/dev/ttyACM2"
     args = common.parse(build_parser(), ["rollout", *robot, "--policy_path=ckpt", "--task=fold_cloth"])
     config = common.config_from_args(rollout.RolloutConfig, args)
     assert config.episodes == 20 and config.episode_time_s == 30.0 and args.device_options == robot

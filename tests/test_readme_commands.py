@@ -1,10 +1,12 @@
-"""Every `obsbench` and `lerobot-*` command line in README's code blocks parses as written: the plugin's own
-commands through their argparse / draccus parsers, LeRobot's through the config classes its scripts parse
-(with the plugin's types registered). Nothing runs; a renamed flag, a removed choice or a type the plugin no
-longer registers fails here, not in a reader's terminal.
+"""Every `obsbench` and `lerobot-*` command line in the shell code blocks of README.md and of every docs/*.md page
+parses as written: the plugin's own commands through `obsbench`'s argparse parser (a device command's
+`--robot.*` / `--teleop.*` options through LeRobot's draccus configs), LeRobot's through the config classes its
+scripts parse (with the plugin's types registered). Nothing runs; a renamed flag, a removed choice or a type the
+plugin no longer registers fails here, naming the page, not in a reader's terminal. Also: README links every
+docs/ page, and every relative link in these pages points at a file that exists.
 
-README's notation: `[--flag value]` is an optional part (checked too, its first `a|b` alternative), `...` stands
-for elided arguments (such a line is checked up to it), `NAME="..."` defines a shell variable used below."""
+The pages' notation: `[--flag value]` is an optional part (checked too, its first `a|b` alternative), `...`
+stands for elided arguments (such a line is checked up to it), `NAME="..."` defines a shell variable used below."""
 
 from __future__ import annotations
 
@@ -14,9 +16,10 @@ from pathlib import Path
 
 import pytest
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+ROOT = Path(__file__).resolve().parents[1]
+PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 COMMAND = re.compile(r"^(?:[A-Z_]+=\S+\s+)*(?:\.venv/bin/)?(obsbench|lerobot-[a-z-]+)\b(.*)$")
-# LeRobot scripts whose configuration README's lines are parsed into: (module, config class)
+# LeRobot scripts whose configuration the pages' lines are parsed into: (module, config class)
 LEROBOT_CONFIGS = {
     "lerobot-train": ("lerobot.configs.train", "TrainPipelineConfig"),
     "lerobot-eval": ("lerobot.configs.eval", "EvalPipelineConfig"),
@@ -24,6 +27,10 @@ LEROBOT_CONFIGS = {
     "lerobot-teleoperate": ("lerobot.scripts.lerobot_teleoperate", "TeleoperateConfig"),
 }
 NO_ARGUMENTS = ("lerobot-find-port",)
+
+
+def _page_name(page: Path) -> str:
+    return str(page.relative_to(ROOT))
 
 
 def _without_comment(line: str) -> str:
@@ -51,10 +58,26 @@ def _preset_output(match: re.Match) -> str:
     return " ".join(preset_args(args.preset, args.policy, args.obs_space, args.encoder))
 
 
-def readme_commands() -> list[tuple[str, list[str]]]:
-    """(program, arguments) of every command line in README's shell blocks."""
+def shell_blocks(text: str) -> list[str]:
+    """The text of every fenced block marked bash, sh or nothing (indented ones included); not text, yaml, ..."""
+    blocks, language, lines = [], None, []
+    for line in text.splitlines():
+        fence = re.match(r"^\s*```(\S*)\s*$", line)
+        if fence and language is None:
+            language, lines = fence.group(1), []
+        elif fence:
+            if language in ("", "bash", "sh"):
+                blocks.append("\n".join(lines) + "\n")
+            language = None
+        elif language is not None:
+            lines.append(line)
+    return blocks
+
+
+def page_commands(page: Path) -> list[tuple[str, list[str]]]:
+    """(program, arguments) of every command line in the page's shell blocks."""
     found = []
-    for block in re.findall(r"```(?:bash|sh)?\n(.*?)```", README.read_text(), re.S):
+    for block in shell_blocks(page.read_text()):
         variables: dict[str, str] = {}
         for raw in block.replace("\\\n", " ").splitlines():
             line = _without_comment(raw.strip())
@@ -75,34 +98,77 @@ def readme_commands() -> list[tuple[str, list[str]]]:
     return found
 
 
-COMMANDS = readme_commands()
+COMMANDS = [(_page_name(page), program, args) for page in PAGES for program, args in page_commands(page)]
 
 
-def test_readme_has_the_commands_it_documents():
-    programs = {program for program, _ in COMMANDS}
+def test_pages_have_the_commands_they_document():
+    programs = {program for _, program, _ in COMMANDS}
     assert {"obsbench", "lerobot-train", "lerobot-eval", "lerobot-calibrate", "lerobot-teleoperate"} <= programs
     assert len(COMMANDS) >= 30
+    readme = {program for page, program, _ in COMMANDS if page == "README.md"}
+    assert {"obsbench", "lerobot-train", "lerobot-eval"} <= readme  # the front door shows training with stock LeRobot
+
+
+def test_readme_links_every_docs_page():
+    readme = (ROOT / "README.md").read_text()
+    missing = [_page_name(page) for page in PAGES[1:] if f"]({_page_name(page)})" not in readme]
+    assert not missing, f"README's Documentation list does not link {missing}"
+
+
+def _anchors(page: Path) -> set[str]:
+    """GitHub's anchors of a Markdown page's headings (code blocks left out)."""
+    text = re.sub(r"^\s*```.*?^\s*```", "", page.read_text(), flags=re.S | re.M)
+    headings = re.findall(r"^#{1,6}\s+(.+?)\s*$", text, re.M)
+    return {re.sub(r"[^\w\- ]", "", heading.lower()).replace(" ", "-") for heading in headings}
+
+
+@pytest.mark.parametrize("page", PAGES, ids=_page_name)
+def test_relative_links_resolve(page):
+    """`[text](path)`, `[text](path#anchor)` and `[text](#anchor)` within the repository: the file exists and,
+    for a Markdown page, has a heading with that anchor."""
+    broken = []
+    for target in re.findall(r"\]\(([^)\s]+)\)", page.read_text()):
+        path, _, anchor = target.partition("#")
+        if re.match(r"^[a-z]+:", path):
+            continue  # a web address
+        file = (page.parent / path) if path else page
+        if not file.exists() or (anchor and file.suffix == ".md" and anchor not in _anchors(file)):
+            broken.append(target)
+    assert not broken, f"{_page_name(page)} links to missing files or headings: {broken}"
+
+
+def _parse_devices(groups: tuple[str, ...], options: list[str]) -> None:
+    """A device command's `--robot.*` / `--teleop.*` options, parsed by LeRobot's own configs (draccus)."""
+    from dataclasses import field, make_dataclass
+
+    import draccus
+    from lerobot.robots import RobotConfig
+    from lerobot.teleoperators import TeleoperatorConfig
+
+    kinds = {"robot": RobotConfig, "teleop": TeleoperatorConfig}
+    devices = make_dataclass("Devices", [(group, kinds[group] | None, field(default=None)) for group in groups])
+    draccus.parse(devices, args=options)
 
 
 def _parse_obsbench(args: list[str]) -> None:
-    from lerobot_obsbench.cli import HARDWARE_COMMANDS, build_parser
+    import importlib
 
-    if args[0] in HARDWARE_COMMANDS:
-        import draccus
+    from lerobot_obsbench.cli import build_parser
 
-        from lerobot_obsbench.datasets.teleop_recording import RecordConfig
-        from lerobot_obsbench.robots.rollout import RolloutConfig
-
-        draccus.parse({"record": RecordConfig, "rollout": RolloutConfig}[args[0]], args=args[1:])
-    else:
-        build_parser().parse_args(args)
+    parsed, rest = build_parser().parse_known_args(args)
+    assert parsed is not None
+    command = importlib.import_module(f"lerobot_obsbench.commands.{args[0].replace('-', '_')}")
+    groups = tuple(getattr(command, "DEVICE_OPTIONS", ()))
+    unknown = [a for a in rest if not a.startswith(tuple(f"--{group}." for group in groups))]
+    assert not unknown, f"obsbench {args[0]} does not take {unknown}"
+    if groups:
+        _parse_devices(groups, rest)
 
 
 def _parse_lerobot(program: str, args: list[str]) -> None:
     import importlib
 
     import draccus
-    from lerobot.teleoperators import koch_leader  # noqa: F401  (registered by LeRobot's own scripts)
 
     module, name = LEROBOT_CONFIGS[program]
     # --policy.path loads a checkpoint's config (LeRobot's parser does it before draccus): not a parse check
@@ -110,14 +176,18 @@ def _parse_lerobot(program: str, args: list[str]) -> None:
     draccus.parse(getattr(importlib.import_module(module), name), args=kept)
 
 
-@pytest.mark.parametrize("program, args", COMMANDS, ids=[f"{p} {' '.join(a)[:60]}" for p, a in COMMANDS])
-def test_readme_command_parses(program, args):
+@pytest.mark.parametrize(
+    "page, program, args", COMMANDS, ids=[f"{page}: {p} {' '.join(a)[:60]}" for page, p, a in COMMANDS]
+)
+def test_page_command_parses(page, program, args):
+    from lerobot.teleoperators import koch_leader  # noqa: F401  (registered by LeRobot's own scripts)
+
     import lerobot_obsbench  # noqa: F401  (the plugin's policies, envs, robots and cameras)
 
     if program in NO_ARGUMENTS:
-        assert args == []
+        assert args == [], f"{page}: {program} takes no arguments"
     elif program == "obsbench":
         _parse_obsbench(args)
     else:
-        assert program in LEROBOT_CONFIGS, f"README runs {program}: add its config class to LEROBOT_CONFIGS"
+        assert program in LEROBOT_CONFIGS, f"{page} runs {program}: add its config class to LEROBOT_CONFIGS"
         _parse_lerobot(program, args)

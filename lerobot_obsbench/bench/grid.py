@@ -174,7 +174,7 @@ def _choose(values: list, valid, name: str) -> list:
 
 @dataclass
 class Grid:
-    """A parsed, validated grid file (fields: README, "The benchmark")."""
+    """A parsed, validated grid file (fields: docs/benchmark.md)."""
 
     name: str
     tasks: list[str]

@@ -16,7 +16,7 @@ HELP = (
     "after calibrate-cameras: align each extra camera's cloud to the first's (Open3D coloured ICP on the "
     "shared table and objects) and save the corrected cam2world; refuses an implausibly large correction"
 )
-EXAMPLE = """obsbench refine-cameras --serial 123456789 987654321 --preset real-bimanual --dry-run"""
+EXAMPLE = """obsbench refine-cameras --serial 123456789 987654321 --preset real-two-arms --dry-run"""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -28,7 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--downsample", type=int, default=2)
     p.add_argument("--extrinsics-dir", default=None, help="where calibrate-cameras saved them (default: LeRobot's)")
     p.add_argument("--workspace", type=float, nargs=6, default=None, help="the region aligned (default: the preset's)")
-    p.add_argument("--preset", default=None, help="take the region from this preset (e.g. real-bimanual)")
+    p.add_argument("--preset", default=None, help="take the region from this preset (e.g. real-two-arms)")
     p.add_argument("--max-mm", type=float, default=20.0, help="refuse a correction moving a camera further")
     p.add_argument("--max-deg", type=float, default=2.0, help="refuse a correction turning a camera further")
     p.add_argument("--min-overlap", type=float, default=0.3, help="refuse when less of a cloud meets the reference")

@@ -13,7 +13,7 @@ from lerobot_obsbench.schema import OBS_SPACES
 NAME = "validate"
 HELP = (
     "check that a LeRobotDataset serves each observation space: keys and shapes, then every frame's "
-    "depth, intrinsics and camera pose (README: Dataset schema); exit code 1 when an asked space fails"
+    "depth, intrinsics and camera pose (docs/observation-spaces.md); exit code 1 when an asked space fails"
 )
 EXAMPLE = """obsbench validate --root data/pickcube --obs-space pointcloud"""
 

@@ -49,7 +49,8 @@ class PointNetBackbone(nn.Module):
 @register_encoder(
     "pointnet",
     ("pointcloud",),
-    "PointNet: 5 kernel-1 convs 64-64-64-128-512 + BN (the paper's PointNet; 84.0k parameters, see README)",
+    "PointNet: 5 kernel-1 convs 64-64-64-128-512 + BN (the paper's PointNet; 84.0k parameters, "
+    "see docs/observation-spaces.md)",
     describe_point_tokens(POINTNET_WIDTHS[-1]),
     default_for=("pointcloud",),
 )

@@ -229,9 +229,9 @@ def evaluate_rlbench(
     }
 
 
-# The paper's camera-view changes (README "Zero-shot perturbations" spells them camera_pitch / camera_yaw, as the
-# ManiSkill half does): vertical = about world y with the camera moved 0.1 m per 5 degrees in x and z, horizontal
-# = about world z; the paper's values are 5 and 10 degrees, applied as negative rotations.
+# The paper's camera-view changes, spelled camera_pitch / camera_yaw as the ManiSkill half spells them
+# (docs/simulation.md, "Zero-shot perturbations"): vertical = about world y with the camera moved 0.1 m per 5 degrees
+# in x and z, horizontal = about world z; the paper's values are 5 and 10 degrees, applied as negative rotations.
 CAMERA_VIEWS = {
     "camera_pitch:5": CameraView("y", -5.0, 0.1),
     "camera_pitch:10": CameraView("y", -10.0, 0.2),

@@ -1,4 +1,4 @@
-"""Real robots (README: Real robot): a RealSense RGB-D camera, Koch follower arms with scene RGB-D cameras (one arm, or
+"""Real robots (docs/real-robot.md): a RealSense RGB-D camera, Koch follower arms with scene RGB-D cameras (one arm, or
 two composed like LeRobot's bimanual SO arms), two Koch leaders, camera extrinsics from a ChArUco board.
 
 Importing this package registers the configuration types with LeRobot (`obsbench_realsense_rgbd`,

@@ -1,4 +1,4 @@
-"""Camera extrinsics from a ChArUco board: cam2world per camera serial (README: Real robot).
+"""Camera extrinsics from a ChArUco board: cam2world per camera serial (docs/real-robot.md).
 
 The paper's set-up puts one ChArUco board (5 x 7 squares of 35 mm, 26 mm markers, DICT_4X4_50) on the table and
 takes the board as the world frame. Here the board pose is found with OpenCV's own detector in several frames,

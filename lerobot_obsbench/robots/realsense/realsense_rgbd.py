@@ -1,4 +1,4 @@
-"""Intel RealSense as one RGB-D sensor for LeRobot robots (README: Real robot).
+"""Intel RealSense as one RGB-D sensor for LeRobot robots (docs/real-robot.md).
 
 LeRobot's `intelrealsense` camera reads colour and depth without registering them and exposes no intrinsics. Here
 the colour and depth sensors stream at the same fps into one librealsense syncer (librealsense's pipeline would drop
