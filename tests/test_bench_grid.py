@@ -123,6 +123,7 @@ def test_bad_grids_fail_with_the_valid_choices(change, words):
         ("episode_length", "0", "episode_length must be a whole number >= 1; got 0"),
         ("validation_episodes", "-1", "validation_episodes must be a whole number >= 0; got -1"),
         ("batch_size", "true", "batch_size must be a whole number >= 1; got True"),
+        ("eval_batch_size", "0", "eval_batch_size must be a whole number >= 1; got 0"),
         ("cameras", "base_camera", "cameras is a list of names"),
     ],
 )
@@ -315,6 +316,7 @@ def test_an_rlbench_grid_trains_on_the_front_camera_and_evaluates_by_rlbenchs_pr
         ({"image_size": 64}, ["image_size 64", "128 x 128"]),
         ({"control_mode": "pd_joint_pos"}, ["control_mode does not apply to RLBench tasks"]),
         ({"held_out_demos": 5}, ["held_out_demos does not apply to RLBench tasks"]),
+        ({"eval_batch_size": 4}, ["eval_batch_size does not apply to RLBench tasks", "one episode at a time"]),
         ({"perturbations": ["light:0.3"]}, ["'light:0.3' has no RLBench counterpart", "camera_pitch:5"]),
     ],
 )
@@ -365,3 +367,39 @@ def test_an_rlbench_grid_asking_for_more_episodes_than_the_data_holds_stops_befo
     assert "test/open_drawer holds 2 episodes; the grid's eval_episodes needs 3" in err
     assert "train/open_drawer holds 2 episodes; the grid's demos needs 5" in err
     assert "COPPELIASIM_ROOT" in err and not (tmp_path / "out").exists()
+
+
+def test_evaluations_run_in_lockstep_up_to_the_cores_a_unit_gets():
+    """The grid's eval_batch_size wins; else the device's measured default, on CPU no more envs than the cores the
+    local engine gives each unit (make main: two units on two cores, one env each)."""
+    from lerobot_obsbench.bench.runner import eval_batch_size
+    from lerobot_obsbench.envs.vector import DEFAULT_BATCH_SIZE
+
+    grid = parse_grid(BASE)
+    assert eval_batch_size(grid, "cpu") == DEFAULT_BATCH_SIZE["cpu"]
+    assert eval_batch_size(grid, "cpu", cores=1) == 1
+    assert eval_batch_size(grid, "cuda:0", cores=1) == DEFAULT_BATCH_SIZE["cuda"]
+    assert eval_batch_size(parse_grid({**BASE, "eval_batch_size": 4}), "cpu", cores=1) == 4
+    run = grid.expand()[0]
+    assert run.config() == parse_grid({**BASE, "eval_batch_size": 4}).expand()[0].config()  # not in the identity
+
+
+def test_the_evaluation_cost_model_is_the_benchmarks_measurement():
+    """The dry run's CPU evaluation rates and the CPU default batch size are what benchmarks/bench_eval.py
+    measured (benchmarks/results/eval_cpu.json): rerunning the benchmark with other numbers fails here until the
+    constants follow."""
+    from pathlib import Path
+
+    from lerobot_obsbench.bench.runner import EVAL_RATE_IMAGE_SIZE, EVAL_STEPS_PER_SECOND
+    from lerobot_obsbench.envs.vector import DEFAULT_BATCH_SIZE
+
+    measured = json.loads((Path(__file__).resolve().parents[1] / "benchmarks/results/eval_cpu.json").read_text())
+    totals = {}
+    for rows in measured["with_policy"].values():
+        for row in rows:
+            steps, seconds = totals.get(row["batch_size"], (0, 0.0))
+            totals[row["batch_size"]] = (steps + row["env_steps"], seconds + row["seconds"])
+            assert row["same_results_as_first"]  # every batch size gave every seed the same outcome
+    assert measured["image_size"] == EVAL_RATE_IMAGE_SIZE
+    assert EVAL_STEPS_PER_SECOND["cpu"] == {n: round(steps / seconds, 1) for n, (steps, seconds) in totals.items()}
+    assert DEFAULT_BATCH_SIZE["cpu"] == min(totals, key=lambda n: totals[n][1])

@@ -174,16 +174,13 @@ def test_env_passthrough_reaches_the_policy(tiny_dataset, policy_type):
 
 
 def test_policy_env_compatibility_names_each_mismatch(tiny_dataset):
-    from types import SimpleNamespace
-
     from lerobot_obsbench.envs.evaluate import check_compatible
 
     policy, *_ = training_setup("obs_act", "rgbd", tiny_dataset)
     assert policy.config.camera_resolution == [40, 40]
     # the synthetic dataset has a 15-D state; ObsBenchEnv gives 16 (9 joints + TCP pose)
-    env = SimpleNamespace(cameras=["hand_camera"], image_size=64, action_space=SimpleNamespace(shape=(8,)))
     with pytest.raises(SchemaError) as err:
-        check_compatible(policy.config, env)
+        check_compatible(policy.config, ["hand_camera"], 64, "pd_joint_pos")  # pd_joint_pos: 8-D actions
     message = str(err.value)
     assert "cameras ['base_camera'] but the env renders ['hand_camera']" in message
     assert "trained on 40x40 frames" in message and "--env.image_size=40" in message

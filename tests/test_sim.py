@@ -236,8 +236,11 @@ def test_recorded_table_is_at_world_z_zero(demos):
     assert abs(float(near_table.median())) < 2e-3
 
 
-def _train_on_demos(demos: Path, out: Path, *flags: str) -> subprocess.CompletedProcess:
-    """Stock lerobot-train of a tiny ACT point-cloud policy on the recorded demos, 4 steps of 4 samples."""
+def _train_on_demos(
+    demos: Path, out: Path, *flags: str, policy: str = "obs_act", space: str = "pointcloud"
+) -> subprocess.CompletedProcess:
+    """Stock lerobot-train of a tiny policy (the `tiny` preset of `policy` on `space`; ACT on point clouds by
+    default) on the recorded demos, 4 steps of 4 samples."""
     from lerobot_obsbench.presets import preset_args
 
     return subprocess.run(
@@ -245,7 +248,7 @@ def _train_on_demos(demos: Path, out: Path, *flags: str) -> subprocess.Completed
             str(BIN / "lerobot-train"),
             *flags,
             "--policy.device=cpu",
-            *preset_args("tiny", "obs_act", "pointcloud"),
+            *preset_args("tiny", policy, space),
             "--dataset.repo_id=local/demos",
             f"--dataset.root={demos}",
             "--batch_size=4",
@@ -340,6 +343,60 @@ def test_policy_env_mismatch_is_explained(checkpoint):
         evaluate(checkpoint, "PickCube-v1", episodes=1, image_size=32)
     with pytest.raises(schema.SchemaError, match="outputs 7-D actions.*takes 8"):
         evaluate(checkpoint, "PickCube-v1", episodes=1, control_mode="pd_joint_pos")
+
+
+@pytest.fixture(scope="module")
+def diffusion_checkpoint(demos, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("train") / "dp"
+    flags = ("--policy.type=obs_diffusion", "--policy.obs_space=rgb")
+    train = _train_on_demos(demos, out, *flags, policy="obs_diffusion", space="rgb")
+    assert train.returncode == 0, train.stderr[-3000:]
+    return out / "checkpoints" / "last" / "pretrained_model"
+
+
+def _outcomes(result: dict) -> list[tuple]:
+    return [(r["seed"], r["success"], r["length"], r.get("grasp")) for r in result["per_episode"]]
+
+
+@pytest.mark.parametrize(
+    "policy, perturbation", [("act", "camera_yaw:10"), ("diffusion", None)], ids=["act-camera_yaw", "diffusion"]
+)
+def test_lockstep_evaluation_gives_each_seed_its_sequential_result(
+    checkpoint, diffusion_checkpoint, policy, perturbation
+):
+    """Three episodes at a time in worker processes, one batched policy call per step, against one at a time:
+    the same seeds, successes, lengths and milestones, and the same dense reward summed over each episode (to the
+    rounding of batched products), which a slot mixed up or a noise stream shared between episodes would change."""
+    from lerobot_obsbench.envs.evaluate import evaluate
+
+    path = {"act": checkpoint, "diffusion": diffusion_checkpoint}[policy]
+    kwargs = dict(episodes=4, episode_length=12, perturbation=perturbation, progress=False)
+    sequential = evaluate(path, "PickCube-v1", batch_size=1, **kwargs)
+    lockstep = evaluate(path, "PickCube-v1", batch_size=3, **kwargs)
+    assert sequential["batch_size"] == 1 and lockstep["batch_size"] == 3
+    assert _outcomes(lockstep) == _outcomes(sequential)
+    assert lockstep["per_seed"] == sequential["per_seed"]
+    rewards = [[r["reward_sum"] for r in result["per_episode"]] for result in (sequential, lockstep)]
+    np.testing.assert_allclose(rewards[1], rewards[0], atol=1e-3)
+    assert len(set(rewards[0])) == 4  # the seeds' episodes differ, so the comparison can tell them apart
+
+
+def test_stock_lerobot_eval_runs_envs_in_parallel_with_the_same_episodes(checkpoint, tmp_path):
+    """`lerobot-eval --eval.batch_size 2 --eval.use_async_envs true` steps two obsbench envs in worker processes;
+    each episode's success and summed reward are those of one env at a time (LeRobot seeds them alike)."""
+    flags = [f"--env.image_size={SIZE}", "--env.episode_length=12"]
+    one = _stock_eval(checkpoint, tmp_path / "one", *flags, episodes=4)
+    two = _stock_eval(
+        checkpoint, tmp_path / "two", *flags, "--eval.batch_size=2", "--eval.use_async_envs=true", episodes=4
+    )
+    assert one.returncode == 0 and two.returncode == 0, (one.stderr + two.stderr)[-3000:]
+    metrics = [
+        json.loads((tmp_path / name / "eval_info.json").read_text())["per_task"][0]["metrics"]
+        for name in ("one", "two")
+    ]
+    assert metrics[0]["successes"] == metrics[1]["successes"]
+    np.testing.assert_allclose(metrics[1]["sum_rewards"], metrics[0]["sum_rewards"], atol=1e-3)
+    assert len(set(metrics[0]["sum_rewards"])) == 4  # four different episodes, in the same order
 
 
 def test_import_maniskill_trajectories_written_by_record_episode(tmp_path):

@@ -204,6 +204,9 @@ class Grid:
     cameras: list[str] = field(default_factory=lambda: ["base_camera"])
     control_mode: str = DEFAULT_CONTROL_MODE
     eval_episodes: int = 50
+    # ManiSkill evaluations: episodes run in lockstep, each env in a process of its own, one batched policy call
+    # per step (envs/evaluate.py); None: the measured default for the device. Not part of a run's identity.
+    eval_batch_size: int | None = None
     # steps per evaluation episode; None: each task's own budget
     episode_length: int | None = None
     perturbations: list[str] = field(default_factory=list)
@@ -358,6 +361,7 @@ NUMERIC_FIELDS = {
     "validation_episodes": (True, 0, True),
     "image_size": (True, MIN_IMAGE_SIZE, True),
     "eval_episodes": (True, 1, True),
+    "eval_batch_size": (True, 1, True),
     "episode_length": (True, 1, True),
 }
 TEXT_LIST_FIELDS = ("cameras", "perturbations")
@@ -513,11 +517,12 @@ def _check_rlbench(values: dict, tasks: list, rlbench: list[str], name: str) -> 
             f"{name}: image_size {values['image_size']!r}: RLBench grids train on PerAct's data as rendered, "
             f"{RLBENCH_IMAGE_SIZE} x {RLBENCH_IMAGE_SIZE}; leave image_size out"
         )
-    for key in ("control_mode", "held_out_demos"):
+    for key in ("control_mode", "held_out_demos", "eval_batch_size"):
         if values.get(key):
             raise GridError(
-                f"{name}: {key} does not apply to RLBench tasks (they act by end-effector pose planning, and the "
-                "held-out diagnostics replay ManiSkill demonstrations); leave it out"
+                f"{name}: {key} does not apply to RLBench tasks (they act by end-effector pose planning, are "
+                "evaluated one episode at a time in CoppeliaSim, and the held-out diagnostics replay ManiSkill "
+                "demonstrations); leave it out"
             )
 
 

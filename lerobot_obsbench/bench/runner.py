@@ -30,6 +30,7 @@ from lerobot_obsbench.bench.units import (
     training_progress,
 )
 from lerobot_obsbench.envs.base_task import TASKS, asset_help, missing_assets, task_spec
+from lerobot_obsbench.envs.vector import default_batch_size
 from lerobot_obsbench.locks import exclusive_output
 from lerobot_obsbench.rlbench.paper_tasks import grid_task_name
 
@@ -51,9 +52,13 @@ TRAIN_SAMPLES_PER_SECOND = {
     ("cuda", "cpu"): {"image": 270.0, "point": 270.0, "none": 270.0},
     ("cuda", "paper"): {"image": 270.0, "point": 100.0, "none": 270.0},
 }
-# Evaluation environment steps per second: cpu from this machine (benchmarks/results/env.json: ~26 rendered steps/s
-# at 128², less the policy's time); cuda a guess (ManiSkill was not run on the GPU machine).
-ENV_STEPS_PER_SECOND = {"cpu": 20.0, "cuda": 60.0}
+# Evaluation env steps per second with the policy at 64², by lockstep batch size: cpu measured on this 2-core
+# machine by benchmarks/bench_eval.py (benchmarks/results/eval_cpu.json: the quick grid's DP3 and blind policies,
+# 24 episodes each, env start-up included; a batch size above the measured ones counts as the largest); cuda a
+# guess, not measured (no GPU was available, and ManiSkill was not run on one). Larger frames render slower: 128²
+# halves the rate (benchmarks/results/env.json: 26.4 steps/s at 128² against bench_eval's 57.0 at 64², no policy).
+EVAL_STEPS_PER_SECOND = {"cpu": {1: 23.6, 2: 24.7, 3: 26.1, 4: 24.1}, "cuda": {1: 60.0}}
+EVAL_RATE_IMAGE_SIZE = 64
 # RLBench steps per second: a guess, not measured (CoppeliaSim does not run here). Each step plans a path to the
 # predicted pose and executes it in CoppeliaSim, which simulates on the CPU whatever the policy's device
 RLBENCH_STEPS_PER_SECOND = {"cpu": 1.0, "cuda": 1.0}
@@ -75,9 +80,22 @@ def train_seconds(run: RunSpec, steps: int, device: str) -> float:
     return steps * run.batch_size / rate * max(run.image_size / 128, 1.0) ** 2 + 20
 
 
-def eval_seconds(spec: EvalSpec, device: str, rlbench: bool = False) -> float:
+def eval_batch_size(grid: Grid, device: str, cores: int | None = None) -> int:
+    """Episodes a ManiSkill evaluation runs in lockstep: the grid's `eval_batch_size`, else the device's default,
+    on CPU at most the `cores` a unit of work gets (its lockstep envs share them)."""
+    if grid.eval_batch_size:
+        return grid.eval_batch_size
+    default = default_batch_size(device)
+    return min(default, cores) if cores and device_kind(device) == "cpu" else default
+
+
+def eval_seconds(spec: EvalSpec, device: str, rlbench: bool = False, batch_size: int = 1, image_size: int = 128):
     # successful episodes end early: count ~60% of the budget
-    rate = (RLBENCH_STEPS_PER_SECOND if rlbench else ENV_STEPS_PER_SECOND)[device_kind(device)]
+    if rlbench:
+        rate = RLBENCH_STEPS_PER_SECOND[device_kind(device)]
+    else:
+        measured = EVAL_STEPS_PER_SECOND[device_kind(device)]
+        rate = measured[min(batch_size, max(measured))] * min(1.0, EVAL_RATE_IMAGE_SIZE / image_size)
     return spec.episodes * spec.max_steps * 0.6 / rate + 10
 
 
@@ -178,7 +196,9 @@ def print_plan(grid: Grid, work: Work, out: Path, device: str, echo=print) -> No
         totals["episodes"] += sum(s.episodes for s in evals)
         for kind in ("cpu", "cuda"):
             totals[kind] += (train_seconds(run, steps, kind) if train else 0) + sum(
-                eval_seconds(s, kind, run.rlbench_task is not None) for s in evals
+                # the cost line's machines: one worker on a 2-core CPU, or one GPU
+                eval_seconds(s, kind, run.rlbench_task is not None, eval_batch_size(grid, kind, 2), run.image_size)
+                for s in evals
             )
     echo(
         f"  total to do: {totals['steps']} optimizer steps, {totals['samples']} training samples, "
@@ -214,6 +234,7 @@ class Driver:
         self.gpus = 1 if device.startswith("cuda") else 0
         # where an RLBench grid's units find PerAct's data and the CLIP weights (not part of any run's identity)
         self.rlbench = {"data": grid.rlbench_data, "clip_weights": grid.clip_weights} if grid.rlbench_data else None
+        self.eval_batch_size = eval_batch_size(grid, device, threads)
 
     # ---- scheduling ----------------------------------------------------------------------------------------
 
@@ -269,7 +290,9 @@ class Driver:
             self.device,
             self.threads,
             self.rlbench,
-            cpus=max(1, self.threads or 1),
+            self.eval_batch_size,
+            # each of the lockstep envs simulates and renders in a process of its own
+            cpus=max(1, self.threads or 1, self.eval_batch_size),
             gpus=self.gpus,
         )
 
@@ -404,7 +427,7 @@ class Driver:
                 run, spec = payload
                 state = evaluation_progress(self.out, run.run_id, spec.eval_id)
                 rlbench = run.rlbench_task is not None
-                remaining += eval_seconds(spec, self.device, rlbench) * (
+                remaining += eval_seconds(spec, self.device, rlbench, self.eval_batch_size, run.image_size) * (
                     1 - (state or {"done": 0})["done"] / spec.episodes
                 )
                 if state:

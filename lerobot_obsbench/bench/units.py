@@ -321,10 +321,12 @@ def eval_unit(
     device: str = "cpu",
     threads: int | None = None,
     rlbench: dict | None = None,
+    batch_size: int = 1,
 ) -> dict:
-    """Evaluate one checkpoint (seed split, episodes, perturbation, episode budget of `eval_config`); returns
-    its eval record. Per-episode results go to runs/<run_id>/eval/<eval_id>.json. An RLBench run is evaluated
-    by RLBench's protocol on the split's episodes in `rlbench["data"]`."""
+    """Evaluate one checkpoint (seed split, episodes, perturbation, episode budget of `eval_config`), ManiSkill
+    episodes `batch_size` at a time in lockstep; returns its eval record. Per-episode results go to
+    runs/<run_id>/eval/<eval_id>.json. An RLBench run is evaluated by RLBench's protocol on the split's episodes in
+    `rlbench["data"]`."""
     import torch
 
     if threads:
@@ -351,6 +353,7 @@ def eval_unit(
                 split=spec.split,
                 progress=False,
                 progress_file=folder / f"{spec.eval_id}.progress",
+                batch_size=batch_size,
             )
     (folder / f"{spec.eval_id}.json").write_text(json.dumps({**spec.config(), **result}, indent=2) + "\n")
     keys = ("episodes", "successes", "success_rate", "ci95", "sub_success", "episode_length_mean", "per_seed", "wall_s")
@@ -362,6 +365,7 @@ def eval_unit(
         "method": run.method,
         "checkpoint_step": checkpoint_step,
         "device": device,
+        **({"batch_size": result["batch_size"]} if "batch_size" in result else {}),
         **{k: result[k] for k in keys},
         "finished_at": now(),
     }

@@ -14,7 +14,7 @@ from lerobot_obsbench.outputs import check_output_file
 NAME = "eval"
 HELP = "success rate of a checkpoint on the task's fixed held-out seeds 0..N-1"
 EXAMPLE = """obsbench eval --policy.path=outputs/train/pickcube/checkpoints/last/pretrained_model \\
-    --env.task=PickCube-v1 --episodes 50 --env.perturbation=camera_yaw:10 --out eval.json"""
+    --env.task=PickCube-v1 --episodes 50 --eval.batch_size=2 --env.perturbation=camera_yaw:10 --out eval.json"""
 INTERRUPTED = "no result was written (--out is written once every episode is done)"
 
 
@@ -41,6 +41,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="zero-shot perturbation kind:value, e.g. camera_yaw:10, light:0.03, background:1,0.2,0.2, noise:16",
     )
     p.add_argument("--policy.device", dest="device", default="cpu")
+    p.add_argument(
+        "--eval.batch_size",
+        dest="batch_size",
+        type=positive_int,
+        default=None,
+        help="episodes run in lockstep, each env in a process of its own, one batched policy call per step "
+        "(default: the measured best for the device, 2 on cpu); 1: one episode at a time in this process",
+    )
     p.add_argument("--videos", type=Path, default=None, help="write one mp4 per episode here")
     p.add_argument("--out", type=Path, default=None, help="write the JSON result here (a file, checked first)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
@@ -49,6 +57,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from lerobot_obsbench.envs.evaluate import evaluate, write_result
     from lerobot_obsbench.envs.perturbations import parse_perturbation
+    from lerobot_obsbench.envs.vector import default_batch_size
 
     parse_perturbation(args.perturbation)  # a typo fails before the policy and the simulator load
     if args.out is not None:
@@ -65,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
         video_dir=args.videos,
         asset_dir=args.asset_dir,
         perturbation=args.perturbation,
+        batch_size=args.batch_size or default_batch_size(args.device),
     )
     write_result(result, args.out)
     lo, hi = result["ci95"]

@@ -1,16 +1,25 @@
 """Success-rate evaluation of a trained policy on the fixed held-out seeds of an OBSBench task.
 
 Episode i uses seed `eval_seeds(n, split)[i]` (test: 0, 1, ..., n-1; validation, for checkpoint selection:
-10000, ...) for the env and for torch's generator, so a given checkpoint, task and seed list always gives the
-same result on the same machine. The policy sees exactly
-what stock `lerobot-eval` would feed it (LeRobot's `preprocess_observation`, then the checkpoint's own
-pre/post-processors).
+10000, ...) for the env and for the policy's sampling noise, so a given checkpoint, task and seed list always
+gives the same result on the same machine. The policy sees exactly what stock `lerobot-eval` would feed it
+(LeRobot's `preprocess_observation`, then the checkpoint's own pre/post-processors).
+
+Lockstep (`batch_size` N > 1): the seeds run in waves of N episodes that advance together, each env in a worker
+process of its own (`envs.vector`), and the policy gets one batch of N observations per step. All episodes of a
+wave start together, so LeRobot's own action and observation queues serve every slot, as in stock
+`lerobot-eval --eval.batch_size`; a finished episode's slot is left out of stepping and its actions are ignored
+until the wave ends. A policy that samples (Diffusion Policy) draws each slot's noise from a generator seeded
+with that slot's episode seed, the stream `torch.manual_seed(seed)` gives one episode at a time. Seed for seed,
+lockstep therefore computes what sequential evaluation computes; only the batched matrix products round
+differently (about 1e-7 on CPU), which can at most flip an episode that sits on a knife edge.
 """
 
 from __future__ import annotations
 
 import json
 import time
+from contextlib import nullcontext
 from pathlib import Path
 
 import numpy as np
@@ -18,22 +27,39 @@ import torch
 from tqdm import tqdm
 
 from lerobot_obsbench.envs.base_task import eval_seeds, task_spec
-from lerobot_obsbench.envs.maniskill import CONTROL_FPS, DEFAULT_CONTROL_MODE, STATE_DIM, ObsBenchEnv
+from lerobot_obsbench.envs.maniskill import (
+    ACTION_DIMS,
+    CONTROL_FPS,
+    DEFAULT_CONTROL_MODE,
+    STATE_DIM,
+    make_obsbench_env,
+)
+from lerobot_obsbench.envs.vector import make_envs
 from lerobot_obsbench.outputs import write_json_atomic, write_text_atomic
 from lerobot_obsbench.policies.loading import load_policy
 from lerobot_obsbench.schema import check_compatibility
 from lerobot_obsbench.stats import per_seed, success_summary
 
 
-def check_compatible(config, env: ObsBenchEnv) -> None:
+def check_compatible(config, cameras: list[str], image_size: int, control_mode: str) -> None:
     """Refuse a policy whose cameras, image size, state or action do not match the env (clear message)."""
-    check_compatibility(config, env.cameras, (env.image_size, env.image_size), STATE_DIM, env.action_space.shape[0])
+    check_compatibility(config, cameras, (image_size, image_size), STATE_DIM, ACTION_DIMS[control_mode])
 
 
-def _batched(obs):
-    if isinstance(obs, dict):
-        return {k: _batched(v) for k, v in obs.items()}
-    return np.expand_dims(obs, 0)
+def _stacked(observations: list):
+    """Per-slot env observations -> one batch (each leaf stacked on a new first axis)."""
+    first = observations[0]
+    if isinstance(first, dict):
+        return {k: _stacked([o[k] for o in observations]) for k in first}
+    return np.stack(observations)
+
+
+def _episode_noise(policy, generators: list[torch.Generator] | None):
+    """Within: a policy that samples draws row i's noise from `generators[i]` (a policy that does not sample has
+    no such hook and needs none)."""
+    return (
+        policy.episode_generators(generators) if generators and hasattr(policy, "episode_generators") else nullcontext()
+    )
 
 
 def evaluate(
@@ -50,20 +76,27 @@ def evaluate(
     progress: bool = True,
     split: str = "test",
     progress_file: Path | None = None,
+    batch_size: int = 1,
 ) -> dict:
-    """Success rate of a checkpoint over the `split`'s first `episodes` seeds (`eval_seeds`). The policy runs on
-    `device` and so does the simulator's renderer (its GPU for cuda). `progress_file` receives
-    {"done", "episodes", "successes"} after every episode (for a grid's live progress)."""
+    """Success rate of a checkpoint over the `split`'s first `episodes` seeds (`eval_seeds`), `batch_size`
+    episodes in lockstep. The policy runs on `device` and so does the simulator's renderer (its GPU for cuda).
+    `progress_file` receives {"done", "episodes", "successes"} after every finished episode (for a grid's live
+    progress)."""
     from lerobot.envs.utils import preprocess_observation
 
     spec = task_spec(task)
+    if batch_size < 1:
+        raise ValueError(f"--eval.batch_size must be >= 1; got {batch_size}")
     policy, pre, post = load_policy(policy_path, device)
     cameras = getattr(policy.config, "cameras", None) or ["base_camera"]
     resolution = getattr(policy.config, "camera_resolution", None)
     size = image_size or (resolution[0] if resolution else 128)
+    check_compatible(policy.config, cameras, size, control_mode)  # before any simulator starts
     steps = episode_length or spec.max_steps
-    env = ObsBenchEnv(
-        task,
+    seeds = eval_seeds(episodes, split)
+    slots = min(batch_size, len(seeds))
+    env_kwargs = dict(
+        task=task,
         cameras=cameras,
         image_size=size,
         control_mode=control_mode,
@@ -72,65 +105,100 @@ def evaluate(
         perturbation=perturbation,
         device=device,
     )
-    check_compatible(policy.config, env)
-    records = []
     start = time.time()
     label = f"eval {task}" + (f" [{perturbation}]" if perturbation not in (None, "none") else "")
-    seeds = eval_seeds(episodes, split)
-    bar = tqdm(seeds, desc=label, unit="ep", disable=not progress)
-    for seed in bar:
-        torch.manual_seed(seed)
-        obs, info = env.reset(seed=seed)
-        policy.reset()
-        frames = [env.render()] if video_dir else None
-        length = 0
-        while length < steps:
-            length += 1
-            batch = pre(preprocess_observation(_batched(obs)))
-            with torch.inference_mode():
-                action = post(policy.select_action(batch))
-            obs, _, terminated, truncated, info = env.step(action[0].cpu().numpy())
-            if frames is not None:
-                frames.append(env.render())
-            if info["is_success"] or terminated or truncated:
-                break
-        records.append(
-            {
-                "seed": seed,
-                "success": bool(info["is_success"]),
-                "length": length,
-                **{k.removeprefix("sub_success/"): bool(v) for k, v in info.items() if k.startswith("sub_success/")},
-            }
-        )
-        if frames is not None:
-            from lerobot.utils.io_utils import write_video
-
-            video_dir.mkdir(parents=True, exist_ok=True)
-            write_video(str(video_dir / f"{task}_seed{seed}.mp4"), np.stack(frames), fps=CONTROL_FPS)
-        wins = sum(r["success"] for r in records)
-        bar.set_postfix(success=f"{wins}/{len(records)}")
-        if progress_file is not None:
-            write_json_atomic(progress_file, {"done": len(records), "episodes": len(seeds), "successes": wins})
-    env.close()
-    sub = {name: round(sum(r[name] for r in records) / len(records), 4) for name in spec.sub_success}
+    bar = tqdm(total=len(seeds), desc=label, unit="ep", disable=not progress)
+    records = {}
+    envs = make_envs(make_obsbench_env, env_kwargs, slots)
+    try:
+        for first in range(0, len(seeds), slots):
+            wave = seeds[first : first + slots]
+            for record in _run_wave(envs, wave, policy, pre, post, preprocess_observation, steps, video_dir, device):
+                records[record["seed"]] = record
+                wins = sum(r["success"] for r in records.values())
+                bar.update(1)
+                bar.set_postfix(success=f"{wins}/{len(records)}")
+                if progress_file is not None:
+                    write_json_atomic(progress_file, {"done": len(records), "episodes": len(seeds), "successes": wins})
+            if video_dir is not None:
+                _write_videos(video_dir, task, wave, records)
+    finally:
+        bar.close()
+        envs.close()
+    ordered = [records[seed] for seed in seeds]
+    sub = {name: round(sum(r[name] for r in ordered) / len(ordered), 4) for name in spec.sub_success}
     return {
         "task": task,
         "policy_path": str(policy_path),
         "obs_space": getattr(policy.config, "obs_space", None),
         "policy_type": policy.config.type,
-        **success_summary([r["success"] for r in records]),
-        "seeds": [r["seed"] for r in records],
+        **success_summary([r["success"] for r in ordered]),
+        "seeds": seeds,
         "sub_success": sub,
-        "episode_length_mean": round(float(np.mean([r["length"] for r in records])), 2),
-        "per_episode": records,
-        "per_seed": per_seed(
-            [r["seed"] for r in records], [r["success"] for r in records], [r["length"] for r in records]
-        ),
+        "episode_length_mean": round(float(np.mean([r["length"] for r in ordered])), 2),
+        "per_episode": [{k: v for k, v in r.items() if k != "frames"} for r in ordered],
+        "per_seed": per_seed(seeds, [r["success"] for r in ordered], [r["length"] for r in ordered]),
         "image_size": size,
         "control_mode": control_mode,
         "perturbation": perturbation or "none",
+        "batch_size": slots,
         "wall_s": round(time.time() - start, 1),
     }
+
+
+def _run_wave(envs, wave, policy, pre, post, preprocess_observation, steps, video_dir, device) -> list[dict]:
+    """Run the episodes of `wave` (one seed per slot) together to their ends; their records, in finishing order."""
+    torch.manual_seed(wave[0])  # one episode at a time (batch size 1) this is all the seeding there is
+    # one noise stream per episode, continued across its steps: what torch.manual_seed(seed) gives it alone
+    generators = [torch.Generator(device=device).manual_seed(seed) for seed in wave]
+    policy.reset()
+    observations, infos = (list(x) for x in zip(*envs.reset(wave), strict=True))
+    frames = [[image] for image in envs.render(range(len(wave)))] if video_dir else None
+    lengths, rewards = [0] * len(wave), [0.0] * len(wave)
+    running = list(range(len(wave)))
+    finished = []
+    while running:
+        batch = pre(preprocess_observation(_stacked(observations)))
+        with torch.inference_mode(), _episode_noise(policy, generators):
+            actions = post(policy.select_action(batch)).cpu().numpy()
+        results = envs.step(running, [actions[slot] for slot in running])
+        if frames is not None:
+            for slot, image in zip(running, envs.render(running), strict=True):
+                frames[slot].append(image)
+        still = []
+        for slot, (obs, reward, terminated, truncated, info) in zip(running, results, strict=True):
+            observations[slot], infos[slot] = obs, info  # a finished slot keeps its last observation
+            lengths[slot] += 1
+            rewards[slot] += reward
+            if info["is_success"] or terminated or truncated or lengths[slot] >= steps:
+                record = _record(wave[slot], info, lengths[slot], rewards[slot], frames[slot] if frames else None)
+                finished.append(record)
+            else:
+                still.append(slot)
+        running = still
+    return finished
+
+
+def _record(seed: int, info: dict, length: int, reward_sum: float, frames: list | None) -> dict:
+    record = {
+        "seed": seed,
+        "success": bool(info["is_success"]),
+        "length": length,
+        "reward_sum": round(float(reward_sum), 6),  # the task's dense reward (ManiSkill's default), summed
+        **{k.removeprefix("sub_success/"): bool(v) for k, v in info.items() if k.startswith("sub_success/")},
+    }
+    if frames is not None:
+        record["frames"] = frames
+    return record
+
+
+def _write_videos(video_dir: Path, task: str, seeds: list[int], records: dict) -> None:
+    from lerobot.utils.io_utils import write_video
+
+    video_dir.mkdir(parents=True, exist_ok=True)
+    for seed in seeds:
+        frames = records[seed].pop("frames")
+        write_video(str(video_dir / f"{task}_seed{seed}.mp4"), np.stack(frames), fps=CONTROL_FPS)
 
 
 def write_result(result: dict, out: Path | None) -> None:

@@ -4,6 +4,7 @@ observation encoder as the conditioning."""
 from __future__ import annotations
 
 from collections import deque
+from contextlib import contextmanager
 
 import torch
 from lerobot.policies.diffusion.modeling_diffusion import (
@@ -101,6 +102,28 @@ class ObsDiffusionModel(DiffusionModel):
         if config.compile_model:
             self.unet = torch.compile(self.unet, mode=config.compile_mode)
 
+    # One generator per batch row while set (lockstep evaluation): each row's noise is then the stream one episode
+    # alone would draw after `torch.manual_seed(its seed)`.
+    episode_generators: list[torch.Generator] | None = None
+
+    def conditional_sample(
+        self,
+        batch_size: int,
+        global_cond: Tensor | None = None,
+        generator: torch.Generator | None = None,
+        noise: Tensor | None = None,
+    ) -> Tensor:
+        generators = self.episode_generators
+        if generators is None or noise is not None:
+            return super().conditional_sample(batch_size, global_cond, generator, noise)
+        if len(generators) != batch_size:
+            raise ValueError(f"{len(generators)} episode generators for a batch of {batch_size}")
+        shape = (1, self.config.horizon, self.config.action_feature.shape[0])
+        dtype, device = global_cond.dtype, global_cond.device
+        noise = torch.cat([torch.randn(shape, dtype=dtype, device=device, generator=g) for g in generators])
+        # the scheduler draws its per-step noise row by row from a list of generators (diffusers' randn_tensor)
+        return super().conditional_sample(batch_size, global_cond, generators, noise)
+
     def _prepare_global_conditioning(self, batch: dict[str, Tensor]) -> Tensor:
         batch_size, n_obs_steps = batch[OBS_STATE].shape[:2]
         # Every observation step is encoded as its own frame.
@@ -150,6 +173,15 @@ class ObsDiffusionPolicy(ModelCardMixin, EnvObservationMixin, DiffusionPolicy):
         valid = ~batch["action_is_pad"][:, start : start + predicted.shape[1]].unsqueeze(-1)
         error = (predicted - target).abs() * valid
         return error.sum((1, 2)) / (valid.sum((1, 2)) * error.shape[-1]).clamp_min(1)
+
+    @contextmanager
+    def episode_generators(self, generators: list[torch.Generator]):
+        """Within: batch row i samples its noise from `generators[i]` (lockstep evaluation, `envs.evaluate`)."""
+        self.diffusion.episode_generators = list(generators)
+        try:
+            yield
+        finally:
+            self.diffusion.episode_generators = None
 
     def get_optim_params(self) -> list[dict]:
         """AdamW groups; with `optimizer_decay_exempt_1d`, biases and 1-D parameters without weight decay."""
