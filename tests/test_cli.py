@@ -223,3 +223,18 @@ def test_every_command_has_its_own_module_whose_example_parses_and_shows_in_help
         assert argv[:2] == ["obsbench", command.NAME]
         args = common.parse(parser, argv[1:])
         assert args.command is command
+
+
+def test_device_options_reach_lerobots_parser_with_either_spelling():
+    """`--robot.port=/dev/x` and `--robot.port /dev/x` both reach LeRobot's robot config; anything else unknown is
+    refused by argparse."""
+    from lerobot_obsbench.cli import build_parser
+    from lerobot_obsbench.commands import common, rollout
+
+    argv = ["rollout", "--robot.type", "obsbench_koch_follower", "--robot.port=/dev/x", "--policy_path", "ckpt"]
+    args = common.parse(build_parser(), argv)
+    assert args.device_options == ["--robot.type=obsbench_koch_follower", "--robot.port=/dev/x"]
+    robot = common.device_configs(rollout.RobotDevice, args.device_options, "rollout").robot
+    assert robot.port == "/dev/x" and args.policy_path == "ckpt"
+    with pytest.raises(SystemExit):
+        common.parse(build_parser(), [*argv, "--teleop.type=koch_leader"])  # rollout drives no teleoperator

@@ -141,7 +141,8 @@ def test_record_train_and_roll_out_on_the_fake_bimanual_robot(tmp_path, syntheti
     )
     result = rollout(make_robot_from_config(robot_cfg), rollout_cfg, operator)
     assert result["episodes"] == 2 and result["successes"] == 1 and result["ci95"][0] < 0.5 < result["ci95"][1]
-    assert json.loads((tmp_path / "rollouts" / "results.json").read_text())["successes"] == 1
+    saved = json.loads((tmp_path / "rollouts" / "results.json").read_text())
+    assert saved["successes"] == 1 and saved["robot"] == robot_cfg.type
     assert all(
         r["steps"] >= 2 and (tmp_path / "rollouts" / f"episode_{r['episode']:03d}.mp4").is_file()
         for r in result["per_episode"]

@@ -266,6 +266,12 @@ def test_import_resumes_and_refuses_another_source(imported, tiny_clip, capsys):
     assert again == imported["open_drawer"]["info"] and "already imported" in capsys.readouterr().out
     with pytest.raises(FileExistsError, match="already holds a dataset made with other settings \\(source"):
         import_rlbench(root / "train" / "close_jar", imported["open_drawer"]["dir"], task="close_jar")
+    # the same source with other cameras, or without the language goal, is another dataset: refused, not returned
+    source, done = root / "train" / "open_drawer", imported["open_drawer"]["dir"]
+    with pytest.raises(FileExistsError, match="cameras \\['front'\\] there, \\['wrist'\\] asked"):
+        import_rlbench(source, done, cameras=("wrist",), text_encoder=tiny_clip)
+    with pytest.raises(FileExistsError, match=f"language {tiny_clip.name!r} there, None asked"):
+        import_rlbench(source, done)
 
 
 def test_import_resumes_after_an_interruption(tmp_path, synthetic_module, monkeypatch):

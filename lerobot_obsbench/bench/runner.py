@@ -82,7 +82,7 @@ def train_seconds(run: RunSpec, steps: int, device: str) -> float:
 
 def eval_batch_size(grid: Grid, device: str, cores: int | None = None) -> int:
     """Episodes a ManiSkill evaluation runs in lockstep: the grid's `eval_batch_size`, else the device's default,
-    on CPU at most the `cores` a unit of work gets (its lockstep envs share them)."""
+    on CPU at most the `cores` a unit of work has to itself when it shares the machine (None: it does not)."""
     if grid.eval_batch_size:
         return grid.eval_batch_size
     default = default_batch_size(device)
@@ -196,8 +196,8 @@ def print_plan(grid: Grid, work: Work, out: Path, device: str, echo=print) -> No
         totals["episodes"] += sum(s.episodes for s in evals)
         for kind in ("cpu", "cuda"):
             totals[kind] += (train_seconds(run, steps, kind) if train else 0) + sum(
-                # the cost line's machines: one worker on a 2-core CPU, or one GPU
-                eval_seconds(s, kind, run.rlbench_task is not None, eval_batch_size(grid, kind, 2), run.image_size)
+                # the cost line's machines: one worker (the whole machine) on a 2-core CPU, or one GPU
+                eval_seconds(s, kind, run.rlbench_task is not None, eval_batch_size(grid, kind), run.image_size)
                 for s in evals
             )
     echo(
@@ -221,7 +221,16 @@ class Driver:
     """Submits units as their inputs become ready, records their results, prints progress."""
 
     def __init__(
-        self, grid: Grid, work: Work, out: Path, engine, device: str, loader_workers: int, threads: int | None, echo
+        self,
+        grid: Grid,
+        work: Work,
+        out: Path,
+        engine,
+        device: str,
+        loader_workers: int,
+        threads: int | None,
+        echo,
+        eval_cores: int | None = None,
     ):
         self.grid, self.work, self.out, self.engine = grid, work, out, engine
         self.device, self.loader_workers, self.threads, self.echo = device, loader_workers, threads, echo
@@ -234,7 +243,7 @@ class Driver:
         self.gpus = 1 if device.startswith("cuda") else 0
         # where an RLBench grid's units find PerAct's data and the CLIP weights (not part of any run's identity)
         self.rlbench = {"data": grid.rlbench_data, "clip_weights": grid.clip_weights} if grid.rlbench_data else None
-        self.eval_batch_size = eval_batch_size(grid, device, threads)
+        self.eval_batch_size = eval_batch_size(grid, device, eval_cores)
 
     # ---- scheduling ----------------------------------------------------------------------------------------
 
@@ -540,7 +549,11 @@ def run_grid(
     with exclusive_output(out, f"obsbench run {grid.name}"):  # a second runner on `out` is refused
         work = load_work(grid, out, echo)
         print_plan(grid, work, out, device, echo)
-        runner = Driver(grid, work, out, make_engine(engine, workers, address), device, loader_workers, threads, echo)
+        # lockstep envs may use the cores a unit has to itself: the machine's with one local worker, its share
+        # with several, one CPU under Ray (what a unit asks for there)
+        eval_cores = None if engine == "local" and workers <= 1 else (threads or 1)
+        units = make_engine(engine, workers, address)
+        runner = Driver(grid, work, out, units, device, loader_workers, threads, echo, eval_cores)
         try:
             runner.start()
             if not runner.pending:

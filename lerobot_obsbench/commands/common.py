@@ -66,10 +66,17 @@ def parse(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespac
     """argparse, except that a device command keeps its `--robot.*` / `--teleop.*` options for LeRobot's parser."""
     args, rest = parser.parse_known_args(argv)
     groups = getattr(getattr(args, "command", None), "DEVICE_OPTIONS", ())
-    unknown = [a for a in rest if not any(a.startswith(f"--{group}.") for group in groups)]
+    device_options, unknown = [], []
+    for item in rest:
+        if any(item.startswith(f"--{group}.") for group in groups):
+            device_options.append(item)
+        elif device_options and "=" not in device_options[-1] and not item.startswith("-"):
+            device_options[-1] += f"={item}"  # `--robot.port /dev/ttyACM0`, spelled with a space
+        else:
+            unknown.append(item)
     if unknown:
         parser.error(f"unrecognized arguments: {' '.join(unknown)}")
-    args.device_options = rest
+    args.device_options = device_options
     return args
 
 
@@ -117,8 +124,8 @@ def device_configs(config_class: type, options: list[str], command: str):
         return draccus.parse(config_class, args=options)
     except DraccusException as err:
         raise UsageError(f"{err} (see `obsbench {command} --help`)") from None
-    except SystemExit:  # draccus prints its own usage and exits on a missing field
-        raise UsageError(f"give the device options, e.g. `obsbench {command} --help`") from None
+    except SystemExit:  # draccus prints what is wrong (a missing or unknown field, a bad value) and exits
+        raise UsageError(f"invalid --robot.* / --teleop.* options (see above; `obsbench {command} --help`)") from None
 
 
 def true_or_false(text: str) -> bool:
@@ -155,7 +162,7 @@ def add_config_options(parser: argparse.ArgumentParser, config_class: type, pref
             dest=f"{prefix}_{field.name}" if prefix else field.name,
             required=required,
             default=default,
-            help=f"{help_text} (default: {default})".strip() if not required else help_text,
+            help=f"{help_text} (default: {str(default).replace('%', '%%')})".strip() if not required else help_text,
             **option,
         )
 

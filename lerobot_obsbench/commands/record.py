@@ -199,6 +199,9 @@ def _record_locked(robot, teleop, config: RecordingConfig, events: dict | None) 
             if index > 0:  # a reset before every episode but the dataset's first
                 print(f"reset the scene ({config.reset_time_s:.0f} s, right arrow to skip)")
                 control_loop(robot, teleop, config.reset_time_s, config.fps, events)
+                if events["stop_recording"]:  # Escape during the reset: no further episode
+                    break
+                events["rerecord_episode"] = False  # a left arrow during the reset concerns no recorded episode
             print(f"recording episode {index + 1}/{config.num_episodes}")
             episode = staging / f"episode_{index:04d}"
             tmp = temporary(episode)

@@ -224,12 +224,12 @@ def rollout(robot, config: RolloutConfig, operator: Operator | None = None) -> d
                 break
     finally:
         robot.disconnect()
-    result = summarize(records, config, policy.config)
+    result = summarize(records, config, policy.config, robot.config.type)
     (out / "results.json").write_text(json.dumps(result, indent=2) + "\n")
     return result
 
 
-def summarize(records: list[dict], config: RolloutConfig, policy_config) -> dict:
+def summarize(records: list[dict], config: RolloutConfig, policy_config, robot_type: str) -> dict:
     return {
         "task": config.task,
         "policy_path": str(config.policy_path),
@@ -237,7 +237,7 @@ def summarize(records: list[dict], config: RolloutConfig, policy_config) -> dict
         "policy_type": policy_config.type,
         **success_summary([r["success"] for r in records]),
         "per_episode": records,
-        "robot": config.robot.type,
+        "robot": robot_type,
         "fps": config.fps,
     }
 

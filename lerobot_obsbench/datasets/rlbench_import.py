@@ -23,10 +23,12 @@ from tqdm import tqdm
 from lerobot_obsbench.datasets.staging import (
     STAGING,
     assemble,
+    commit,
     drop_unfinished,
     prepare_dataset_out,
     save_episode_file,
     settings_differences,
+    temporary,
 )
 from lerobot_obsbench.locks import exclusive_output
 from lerobot_obsbench.rlbench.format import (
@@ -78,13 +80,25 @@ def import_rlbench(
     if not cameras:
         raise ValueError("--cameras: name at least one RLBench camera (front, left_shoulder, right_shoulder, wrist)")
     episodes = find_episodes(task_dir)[:max_episodes]
-    settings = {"source": str(task_dir), "task": spec.name, "cameras": list(cameras), "quaternion": quaternion}
+    language = None if text_encoder is None else text_encoder.name
+    settings = {
+        "source": str(task_dir),
+        "task": spec.name,
+        "cameras": list(cameras),
+        "quaternion": quaternion,
+        "language": language,
+    }
 
     def finished_differences(info: dict) -> str:
-        found = len(info.get("episodes", [])) + len(info.get("skipped", []))
-        return settings_differences(
-            {"source": info.get("source"), "episodes": found}, {"source": str(task_dir), "episodes": len(episodes)}
-        )
+        found = {
+            "source": info.get("source"),
+            "cameras": info.get("cameras"),
+            "quaternion": info.get("quaternion"),
+            "language": (info.get("language") or {}).get("encoder"),
+            "episodes": len(info.get("episodes", [])) + len(info.get("skipped", [])),
+        }
+        wanted = {k: settings[k] for k in ("source", "cameras", "quaternion", "language")}
+        return settings_differences(found, {**wanted, "episodes": len(episodes)})
 
     with exclusive_output(out, "obsbench import-rlbench"):
         prepare_dataset_out(out, settings, SIDECAR, finished_differences, overwrite)
@@ -112,8 +126,10 @@ def _import_locked(task_dir, out, spec, episodes, cameras, text_encoder, quatern
                 tqdm.write(f"skipped {ref.path}: {error}")
                 skipped.append({"path": str(ref.path), "error": str(error)})
                 continue
+            # each file written whole; the episode counts as done once both are there
+            temporary(text_file).write_text(json.dumps(meta) + "\n")
+            commit(text_file)
             save_episode_file(target, frames)
-            text_file.write_text(json.dumps(meta) + "\n")
         meta = json.loads(text_file.read_text())
         files.append(target)
         texts.append(meta["description"])

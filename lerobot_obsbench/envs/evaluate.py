@@ -146,8 +146,9 @@ def evaluate(
     }
 
 
-def _run_wave(envs, wave, policy, pre, post, preprocess_observation, steps, video_dir, device) -> list[dict]:
-    """Run the episodes of `wave` (one seed per slot) together to their ends; their records, in finishing order."""
+def _run_wave(envs, wave, policy, pre, post, preprocess_observation, steps, video_dir, device):
+    """Run the episodes of `wave` (one seed per slot) together to their ends, yielding each one's record as it
+    finishes."""
     torch.manual_seed(wave[0])  # one episode at a time (batch size 1) this is all the seeding there is
     # one noise stream per episode, continued across its steps: what torch.manual_seed(seed) gives it alone
     generators = [torch.Generator(device=device).manual_seed(seed) for seed in wave]
@@ -156,7 +157,6 @@ def _run_wave(envs, wave, policy, pre, post, preprocess_observation, steps, vide
     frames = [[image] for image in envs.render(range(len(wave)))] if video_dir else None
     lengths, rewards = [0] * len(wave), [0.0] * len(wave)
     running = list(range(len(wave)))
-    finished = []
     while running:
         batch = pre(preprocess_observation(_stacked(observations)))
         with torch.inference_mode(), _episode_noise(policy, generators):
@@ -171,12 +171,10 @@ def _run_wave(envs, wave, policy, pre, post, preprocess_observation, steps, vide
             lengths[slot] += 1
             rewards[slot] += reward
             if info["is_success"] or terminated or truncated or lengths[slot] >= steps:
-                record = _record(wave[slot], info, lengths[slot], rewards[slot], frames[slot] if frames else None)
-                finished.append(record)
+                yield _record(wave[slot], info, lengths[slot], rewards[slot], frames[slot] if frames else None)
             else:
                 still.append(slot)
         running = still
-    return finished
 
 
 def _record(seed: int, info: dict, length: int, reward_sum: float, frames: list | None) -> dict:

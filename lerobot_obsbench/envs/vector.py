@@ -62,9 +62,10 @@ def _worker(connection, make_env: Callable, env_kwargs: dict) -> None:
     except Exception as err:  # raised again in the parent: the same error as in one process, with this traceback
         text = traceback.format_exc()
         try:
-            connection.send(("raise", err, text))
-        except (pickle.PicklingError, TypeError, AttributeError):
-            connection.send(("raise", None, text))
+            pickle.loads(pickle.dumps(err))  # an exception the parent could not rebuild travels as text only
+        except Exception:
+            err = None
+        connection.send(("raise", err, text))
     finally:
         if env is not None:
             env.close()
@@ -102,14 +103,14 @@ class SubprocessEnvs:
         context.set_forkserver_preload(["lerobot_obsbench.envs.maniskill"])
         self.size = size
         self.connections, self.processes = [], []
-        for _ in range(size):
-            parent, child = context.Pipe()
-            process = context.Process(target=_worker, args=(child, make_env, env_kwargs), daemon=True)
-            process.start()
-            child.close()
-            self.connections.append(parent)
-            self.processes.append(process)
         try:
+            for _ in range(size):
+                parent, child = context.Pipe()
+                process = context.Process(target=_worker, args=(child, make_env, env_kwargs), daemon=True)
+                self.connections.append(parent)
+                process.start()
+                self.processes.append(process)
+                child.close()
             self._collect(range(size))  # each worker made its env (or failed to: its error is raised here)
         except BaseException:
             self.close()
@@ -121,10 +122,13 @@ class SubprocessEnvs:
             try:
                 status, result, *text = self.connections[slot].recv()
             except EOFError:
+                self.processes[slot].join(timeout=5)
                 raise EnvWorkerError(f"env worker {slot} died (exit code {self.processes[slot].exitcode})") from None
             if status == "raise":
                 cause = EnvWorkerError(f"in env worker {slot}:\n{text[0]}")
-                raise (result or cause) from cause
+                if result is None:
+                    raise cause
+                raise result from cause
             results.append(result)
         return results
 
@@ -146,12 +150,13 @@ class SubprocessEnvs:
         return self._collect(slots)
 
     def close(self) -> None:
-        for connection, process in zip(self.connections, self.processes, strict=True):
+        for connection, process in zip(self.connections, self.processes, strict=False):
             if process.is_alive():
                 try:
                     connection.send(("close", None))
                 except (BrokenPipeError, OSError):
                     pass
+        for connection in self.connections:
             connection.close()
         for process in self.processes:
             process.join(timeout=30)
