@@ -47,6 +47,11 @@ policy_overrides: {workspace: [-1, 1, -1, 1, 0.005, 1]}
 TIMING = ("timings", "wall_s", "finished_at", "checkpoint", "checkpoints", "versions", "trained_in")
 
 
+def _ctrl_c_reaches_it() -> None:
+    """A command started from a shell's background job inherits SIGINT ignored; Ctrl-C tests need it delivered."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def obsbench(*args, env: dict | None = None, **kwargs) -> subprocess.Popen:
     return subprocess.Popen(
         [str(BIN / "obsbench"), *args],
@@ -55,6 +60,7 @@ def obsbench(*args, env: dict | None = None, **kwargs) -> subprocess.Popen:
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
+        preexec_fn=_ctrl_c_reaches_it,
         **kwargs,
     )
 

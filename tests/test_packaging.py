@@ -51,6 +51,9 @@ def test_a_wheel_installed_in_a_scratch_venv_finds_the_preset_grids(tmp_path):
         capture_output=True,
         text=True,
         timeout=600,
+        # a PYTHONPATH holding the checkout (and the egg-info the wheel build left there) would make pip think the
+        # plugin is installed already and skip it
+        env={k: v for k, v in os.environ.items() if k != "PYTHONPATH"},
     )
     assert install.returncode == 0, install.stderr[-3000:]
     # the dependencies (LeRobot, ManiSkill, ...) come from this environment's site-packages, where the plugin

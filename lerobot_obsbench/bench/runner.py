@@ -544,14 +544,15 @@ def run_grid(
     if dry_run:
         print_plan(grid, load_work(grid, out, echo), out, device, echo)
         return 0
+    # lockstep envs may use the cores a unit has to itself: the machine's with one local worker (unless --threads
+    # says fewer), its share with several, one CPU under Ray (what a unit asks for there)
+    whole_machine = engine == "local" and workers <= 1 and threads is None
     if threads is None and engine == "local":
         threads = max(1, (os.cpu_count() or 1) // max(workers, 1))
+    eval_cores = None if whole_machine else (threads or 1)
     with exclusive_output(out, f"obsbench run {grid.name}"):  # a second runner on `out` is refused
         work = load_work(grid, out, echo)
         print_plan(grid, work, out, device, echo)
-        # lockstep envs may use the cores a unit has to itself: the machine's with one local worker, its share
-        # with several, one CPU under Ray (what a unit asks for there)
-        eval_cores = None if engine == "local" and workers <= 1 else (threads or 1)
         units = make_engine(engine, workers, address)
         runner = Driver(grid, work, out, units, device, loader_workers, threads, echo, eval_cores)
         try:
