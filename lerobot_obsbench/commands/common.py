@@ -128,6 +128,19 @@ def device_configs(config_class: type, options: list[str], command: str):
         raise UsageError(f"invalid --robot.* / --teleop.* options (see above; `obsbench {command} --help`)") from None
 
 
+def keyboard_events() -> dict:
+    """LeRobot's keyboard controls for the device commands (right arrow, left arrow, Escape), as its dict of
+    events."""
+    from lerobot.utils.keyboard_input import init_keyboard_listener
+
+    return init_keyboard_listener()[1]
+
+
+def _dest(prefix: str, name: str) -> str:
+    """Where argparse keeps config field `name` of the `--<prefix>.*` options."""
+    return f"{prefix}_{name}" if prefix else name
+
+
 def true_or_false(text: str) -> bool:
     """argparse type of a boolean config field, LeRobot's spelling: `--field=true|false`."""
     value = text.strip().lower()
@@ -159,7 +172,7 @@ def add_config_options(parser: argparse.ArgumentParser, config_class: type, pref
             option = {"type": true_or_false, "nargs": "?", "const": True, "metavar": "true|false"}
         parser.add_argument(
             f"--{prefix}.{field.name}" if prefix else f"--{field.name}",
-            dest=f"{prefix}_{field.name}" if prefix else field.name,
+            dest=_dest(prefix, field.name),
             required=required,
             default=default,
             help=f"{help_text} (default: {str(default).replace('%', '%%')})".strip() if not required else help_text,
@@ -171,6 +184,4 @@ def config_from_args(config_class: type, args: argparse.Namespace, prefix: str =
     """The dataclass config `add_config_options` made options for, from the parsed arguments."""
     import dataclasses
 
-    return config_class(
-        **{f.name: getattr(args, f"{prefix}_{f.name}" if prefix else f.name) for f in dataclasses.fields(config_class)}
-    )
+    return config_class(**{f.name: getattr(args, _dest(prefix, f.name)) for f in dataclasses.fields(config_class)})

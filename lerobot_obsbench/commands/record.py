@@ -184,7 +184,7 @@ def _record_locked(robot, teleop, config: RecordingConfig, events: dict | None) 
         )
     staging = root / STAGING
     staging.mkdir(parents=True, exist_ok=True)
-    events = events if events is not None else _keyboard_events()
+    events = events if events is not None else common.keyboard_events()
     connect(robot, teleop)
     try:
         features = dataset_features(robot)
@@ -292,12 +292,6 @@ def _aggregate(root: Path, episodes: list[Path], config: RecordingConfig, timing
         LeRobotDataset(config.repo_id, root=root).push_to_hub(private=config.private)
     print(f"{root}: {len(episodes)} episodes, mean {info['mean_fps']} fps")
     return info
-
-
-def _keyboard_events() -> dict:
-    from lerobot.utils.keyboard_input import init_keyboard_listener
-
-    return init_keyboard_listener()[1]
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

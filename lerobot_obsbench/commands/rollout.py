@@ -148,7 +148,7 @@ def rollout(robot, config: RolloutConfig, operator: Operator | None = None) -> d
     from lerobot.utils.io_utils import write_video
     from lerobot.utils.robot_utils import precise_sleep
 
-    operator = operator or Operator(events=_keyboard_events())
+    operator = operator or Operator(events=common.keyboard_events())
     events = operator.events
     policy, pre, post = load_policy(config.policy_path, config.device)
     out = Path(config.out)
@@ -240,12 +240,6 @@ def summarize(records: list[dict], config: RolloutConfig, policy_config, robot_t
         "robot": robot_type,
         "fps": config.fps,
     }
-
-
-def _keyboard_events() -> dict:
-    from lerobot.utils.keyboard_input import init_keyboard_listener
-
-    return init_keyboard_listener()[1]
 
 
 @dataclass

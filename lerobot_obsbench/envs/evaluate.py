@@ -12,7 +12,8 @@ wave start together, so LeRobot's own action and observation queues serve every 
 until the wave ends. A policy that samples (Diffusion Policy) draws each slot's noise from a generator seeded
 with that slot's episode seed, the stream `torch.manual_seed(seed)` gives one episode at a time. Seed for seed,
 lockstep therefore computes what sequential evaluation computes; only the batched matrix products round
-differently (about 1e-7 on CPU), which can at most flip an episode that sits on a knife edge.
+differently (1e-7 to 1e-6 in the networks' outputs on CPU), which can at most flip an episode that sits on a knife
+edge.
 """
 
 from __future__ import annotations
@@ -54,12 +55,10 @@ def _stacked(observations: list):
     return np.stack(observations)
 
 
-def _episode_noise(policy, generators: list[torch.Generator] | None):
+def _episode_noise(policy, generators: list[torch.Generator]):
     """Within: a policy that samples draws row i's noise from `generators[i]` (a policy that does not sample has
     no such hook and needs none)."""
-    return (
-        policy.episode_generators(generators) if generators and hasattr(policy, "episode_generators") else nullcontext()
-    )
+    return policy.episode_generators(generators) if hasattr(policy, "episode_generators") else nullcontext()
 
 
 def evaluate(
@@ -136,7 +135,7 @@ def evaluate(
         "seeds": seeds,
         "sub_success": sub,
         "episode_length_mean": round(float(np.mean([r["length"] for r in ordered])), 2),
-        "per_episode": [{k: v for k, v in r.items() if k != "frames"} for r in ordered],
+        "per_episode": ordered,  # each wave's frames went to its videos
         "per_seed": per_seed(seeds, [r["success"] for r in ordered], [r["length"] for r in ordered]),
         "image_size": size,
         "control_mode": control_mode,
@@ -153,7 +152,7 @@ def _run_wave(envs, wave, policy, pre, post, preprocess_observation, steps, vide
     # one noise stream per episode, continued across its steps: what torch.manual_seed(seed) gives it alone
     generators = [torch.Generator(device=device).manual_seed(seed) for seed in wave]
     policy.reset()
-    observations, infos = (list(x) for x in zip(*envs.reset(wave), strict=True))
+    observations = [obs for obs, _ in envs.reset(wave)]
     frames = [[image] for image in envs.render(range(len(wave)))] if video_dir else None
     lengths, rewards = [0] * len(wave), [0.0] * len(wave)
     running = list(range(len(wave)))
@@ -167,7 +166,7 @@ def _run_wave(envs, wave, policy, pre, post, preprocess_observation, steps, vide
                 frames[slot].append(image)
         still = []
         for slot, (obs, reward, terminated, truncated, info) in zip(running, results, strict=True):
-            observations[slot], infos[slot] = obs, info  # a finished slot keeps its last observation
+            observations[slot] = obs  # a finished slot keeps its last observation
             lengths[slot] += 1
             rewards[slot] += reward
             if info["is_success"] or terminated or truncated or lengths[slot] >= steps:

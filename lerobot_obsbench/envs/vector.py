@@ -77,7 +77,6 @@ class InProcessEnvs:
 
     def __init__(self, make_env: Callable, env_kwargs: dict):
         self.env = make_env(**env_kwargs)
-        self.size = 1
 
     def reset(self, seeds: Sequence[int]) -> list[tuple[dict, dict]]:
         (seed,) = seeds
@@ -99,9 +98,9 @@ class SubprocessEnvs:
 
     def __init__(self, make_env: Callable, env_kwargs: dict, size: int):
         context = mp.get_context("forkserver")
-        # the fork server imports the simulator once; each worker forked from it then only builds its env
-        context.set_forkserver_preload(["lerobot_obsbench.envs.maniskill"])
-        self.size = size
+        # the fork server imports the env's module (the simulator) once; each worker forked from it then only builds
+        # its env
+        context.set_forkserver_preload([make_env.__module__])
         self.connections, self.processes = [], []
         try:
             for _ in range(size):
