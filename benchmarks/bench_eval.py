@@ -7,7 +7,9 @@
   after they started, and the start-up time of the N envs.
 
     .venv/bin/python -m benchmarks.bench_eval [--checkpoints DIR ...] [--task PushCubeWide-v1] [--episodes 24]
-        [--sizes 1 2 3 4] [--device cpu] [--out FILE]
+        [--sizes 1 2 3 4] [--device cpu] [--sim-backend auto] [--out FILE]
+
+On a GPU: `--device cuda --sizes 1 64 256 --episodes 256` (auto: ManiSkill's GPU simulation for N > 1).
 
 The default checkpoints are the `quick` grid's DP3 point-cloud policy (most episodes succeed early) and its blind
 control (most run the whole 50 steps), as `make main` trains them; the task and image size are the grid's. Writes
@@ -24,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import ROOT, write
-from lerobot_obsbench.envs.evaluate import evaluate
+from lerobot_obsbench.envs.evaluate import choose_sim_backend, evaluate
 from lerobot_obsbench.envs.maniskill import make_obsbench_env
 from lerobot_obsbench.envs.vector import make_envs
 
@@ -43,12 +45,21 @@ def with_policy(checkpoint: Path, args) -> list[dict]:
     rows, reference = [], None
     for size in args.sizes:
         start = time.perf_counter()
-        result = evaluate(checkpoint, args.task, args.episodes, device=args.device, progress=False, batch_size=size)
+        result = evaluate(
+            checkpoint,
+            args.task,
+            args.episodes,
+            device=args.device,
+            progress=False,
+            batch_size=size,
+            sim_backend=args.sim_backend,
+        )
         seconds = time.perf_counter() - start
         outcome = {k: result["per_seed"][k] for k in ("success", "length")}
         reference = reference or outcome
         row = {
             "batch_size": size,
+            "sim_backend": result["sim_backend"],
             "episodes_per_min": round(60 * args.episodes / seconds, 1),
             "seconds": round(seconds, 1),
             "env_steps": int(sum(result["per_seed"]["length"])),
@@ -63,9 +74,13 @@ def with_policy(checkpoint: Path, args) -> list[dict]:
     return rows
 
 
-def env_steps_per_second(env_kwargs: dict, size: int, steps: int) -> dict:
+def env_steps_per_second(env_kwargs: dict, size: int, steps: int, sim_backend: str) -> dict:
+    sim = choose_sim_backend(sim_backend, env_kwargs["device"], size, None)
     start = time.perf_counter()
-    envs = make_envs(make_obsbench_env, env_kwargs, size)
+    if sim == "physx_cuda":
+        envs = make_envs(make_obsbench_env, {**env_kwargs, "sim_backend": sim}, size, batched=True)
+    else:
+        envs = make_envs(make_obsbench_env, env_kwargs, size)
     started = time.perf_counter() - start
     try:
         envs.reset(list(range(size)))
@@ -73,11 +88,11 @@ def env_steps_per_second(env_kwargs: dict, size: int, steps: int) -> dict:
         slots = list(range(size))
         begin = time.perf_counter()
         for _ in range(steps):
-            envs.step(slots, [rng.uniform(-1, 1, 7).astype(np.float32) for _ in slots])
+            envs.step(slots, rng.uniform(-1, 1, (size, 7)).astype(np.float32))
         rate = size * steps / (time.perf_counter() - begin)
     finally:
         envs.close()
-    return {"batch_size": size, "env_steps_per_s": round(rate, 1), "start_s": round(started, 1)}
+    return {"batch_size": size, "sim_backend": sim, "env_steps_per_s": round(rate, 1), "start_s": round(started, 1)}
 
 
 def main() -> None:
@@ -88,6 +103,7 @@ def main() -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[1, 2, 3, 4])
     parser.add_argument("--steps", type=int, default=100, help="env steps per slot without the policy")
     parser.add_argument("--device", default="cpu")
+    parser.add_argument("--sim-backend", default="auto", help="auto, physx_cpu or physx_cuda (obsbench eval's)")
     parser.add_argument("--out", type=Path)
     args = parser.parse_args()
     checkpoints = args.checkpoints or [quick_checkpoint("pointcloud"), quick_checkpoint("none")]
@@ -101,7 +117,7 @@ def main() -> None:
     )
     without_policy = []
     for size in args.sizes:
-        row = env_steps_per_second(env_kwargs, size, args.steps)
+        row = env_steps_per_second(env_kwargs, size, args.steps, args.sim_backend)
         without_policy.append(row)
         print(f"N={size} without the policy: {row['env_steps_per_s']} env steps/s (start {row['start_s']} s)")
     best = {}

@@ -54,5 +54,51 @@ class EchoPolicy:
         self.resets += 1
 
     def select_action(self, batch: dict) -> torch.Tensor:
-        self.batch_sizes.append(len(batch["agent_pos"]))
-        return torch.as_tensor(batch["agent_pos"]).clone()
+        self.batch_sizes.append(len(batch["observation.state"]))
+        return batch["observation.state"].clone()
+
+
+class ToyBatchEnv:
+    """`num_envs` toy episodes simulated together, the way ManiSkill's GPU simulation steps them: every env steps
+    on every call (an env whose episode ended stands still), and observations are torch tensors."""
+
+    device = "cpu"
+
+    def __init__(self, num_envs: int, tag: str = "toy"):
+        self.num_envs, self.envs = num_envs, [ToyEnv(f"{tag}[{i}]") for i in range(num_envs)]
+        self.seeds_seen: list[list[int]] = []
+
+    def _batch(self, observations: list[dict]) -> dict:
+        return {"agent_pos": torch.as_tensor(np.stack([o["agent_pos"] for o in observations]))}
+
+    def reset_all(self, seeds):
+        self.seeds_seen.append(list(seeds))
+        results = [env.reset(seed) for env, seed in zip(self.envs, seeds, strict=True)]
+        return self._batch([obs for obs, _ in results]), {"is_success": torch.zeros(self.num_envs, dtype=torch.bool)}
+
+    def step_all(self, actions: torch.Tensor):
+        assert actions.shape[0] == self.num_envs, actions.shape
+        results = [
+            env.step(action.numpy()) if not env.done else (env._obs(), 0.0, False, False, {"is_success": True})
+            for env, action in zip(self.envs, actions, strict=True)
+        ]
+        info = {
+            key: torch.tensor([r[4].get(key, True) for r in results]) for key in ("is_success", "sub_success/named")
+        }
+        return (
+            self._batch([r[0] for r in results]),
+            torch.tensor([r[1] for r in results]),
+            torch.zeros(self.num_envs, dtype=torch.bool),
+            torch.zeros(self.num_envs, dtype=torch.bool),
+            info,
+        )
+
+    def render_all(self) -> torch.Tensor:
+        return torch.as_tensor(np.stack([env.render() for env in self.envs]))
+
+    def close(self) -> None:
+        pass
+
+
+def make_toy_batch_env(num_envs: int, tag: str = "toy") -> ToyBatchEnv:
+    return ToyBatchEnv(num_envs, tag)

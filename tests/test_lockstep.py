@@ -9,33 +9,35 @@ import numpy as np
 import pytest
 import torch
 
-from lerobot_obsbench.envs.evaluate import _run_wave
-from lerobot_obsbench.envs.vector import EnvWorkerError, InProcessEnvs, SubprocessEnvs, make_envs
+from lerobot_obsbench.envs.evaluate import _run_wave, choose_sim_backend, policy_observation
+from lerobot_obsbench.envs.maniskill import check_sim_backend
+from lerobot_obsbench.envs.vector import BatchedEnvs, EnvWorkerError, InProcessEnvs, SubprocessEnvs, make_envs
 from tests.helpers import training_setup
-from tests.lockstep_envs import EchoPolicy, make_toy_env
+from tests.lockstep_envs import EchoPolicy, make_toy_batch_env, make_toy_env
 
 
 def _identity(x):
     return x
 
 
-def _as_tensors(observation: dict) -> dict:
-    return {k: torch.as_tensor(v) for k, v in observation.items()}
-
-
 def _wave(envs, seeds, steps=6, policy=None):
     policy = policy or EchoPolicy()
-    records = _run_wave(envs, seeds, policy, _identity, _identity, _as_tensors, steps, None, "cpu")
+    records = _run_wave(envs, seeds, policy, _identity, _identity, steps, None, "cpu")
     return {r["seed"]: r for r in records}, policy
+
+
+def _alone(seeds, steps):
+    alone = {}
+    for seed in seeds:
+        envs = InProcessEnvs(make_toy_env, {"tag": "alone"})
+        alone.update(_wave(envs, [seed], steps=steps)[0])
+        envs.close()
+    return alone
 
 
 def test_a_wave_in_worker_processes_gives_each_episode_what_it_gets_alone():
     seeds = [5, 2, 7]  # successes at steps 3 and 4; seed 7 would need 5 steps and is cut at 4
-    alone = {}
-    for seed in seeds:
-        envs = InProcessEnvs(make_toy_env, {"tag": "alone"})
-        alone.update(_wave(envs, [seed], steps=4)[0])
-        envs.close()
+    alone = _alone(seeds, steps=4)
     envs = SubprocessEnvs(make_toy_env, {"tag": "worker"}, size=3)
     try:
         together, policy = _wave(envs, seeds, steps=4)
@@ -89,7 +91,75 @@ def test_diffusion_draws_each_rows_noise_from_its_episodes_generator(tiny_datase
 
 
 def test_stacking_per_slot_observations_keeps_the_nesting():
-    from lerobot_obsbench.envs.evaluate import _stacked
+    from lerobot_obsbench.envs.vector import stacked
 
-    stacked = _stacked([{"pixels": {"cam": np.zeros((2, 2, 3))}, "agent_pos": np.ones(3)}] * 4)
-    assert stacked["pixels"]["cam"].shape == (4, 2, 2, 3) and stacked["agent_pos"].shape == (4, 3)
+    batch = stacked([{"pixels": {"cam": np.zeros((2, 2, 3))}, "agent_pos": np.ones(3)}] * 4)
+    assert batch["pixels"]["cam"].shape == (4, 2, 2, 3) and batch["agent_pos"].shape == (4, 3)
+
+
+def test_one_batched_env_object_gives_each_slot_its_own_episode_and_fills_a_short_wave():
+    """`BatchedEnvs` (ManiSkill's GPU simulation's shape: one object, all envs step on every call, tensors): a wave
+    of 4 seeds, then a short wave of 2 on the same 4 envs, come out as each episode alone."""
+    envs = make_envs(make_toy_batch_env, {"tag": "batched"}, 4, batched=True)
+    assert isinstance(envs, BatchedEnvs)
+    try:
+        first, policy = _wave(envs, [5, 2, 7, 4], steps=4)
+        short, short_policy = _wave(envs, [3, 6], steps=6)
+        with pytest.raises(ValueError, match="a wave of 5 seeds for 4 batched envs"):
+            envs.reset([1, 2, 3, 4, 5])
+    finally:
+        envs.close()
+    assert first == _alone([5, 2, 7, 4], steps=4) and short == _alone([3, 6], steps=6)
+    assert [short[s]["length"] for s in (3, 6)] == [5, 4] and all(r["named"] for r in short.values())
+    assert envs.env.seeds_seen[1] == [3, 6, 6, 6]  # the spare envs rerun the wave's last seed, unread
+    assert set(policy.batch_sizes) == {4} and set(short_policy.batch_sizes) == {2}  # the policy sees the wave only
+    assert len(envs.render([0, 1])) == 2
+
+
+def test_policy_observation_of_device_tensors_is_lerobots_preprocessing():
+    """The observation a batched simulator keeps as tensors is turned into exactly what LeRobot's
+    `preprocess_observation` makes of the same arrays."""
+    from lerobot.envs.utils import preprocess_observation
+
+    rng = np.random.default_rng(0)
+    arrays = {
+        "pixels": {"base_camera": rng.integers(0, 256, (3, 8, 8, 3), dtype=np.uint8)},
+        "agent_pos": rng.normal(size=(3, 16)).astype(np.float32),
+        "environment_state": rng.normal(size=(3, 3)).astype(np.float32),
+        "robot_state": {"depth.base_camera": rng.integers(0, 2000, (3, 8, 8, 1)).astype(np.uint16)},
+    }
+    tensors = {
+        "pixels": {k: torch.from_numpy(v) for k, v in arrays["pixels"].items()},
+        "agent_pos": torch.from_numpy(arrays["agent_pos"]),
+        "environment_state": torch.from_numpy(arrays["environment_state"]),
+        "robot_state": {k: torch.from_numpy(v) for k, v in arrays["robot_state"].items()},
+    }
+    stock, ours = preprocess_observation(arrays), policy_observation(tensors)
+    assert policy_observation(arrays).keys() == stock.keys() == ours.keys()
+    for key, value in stock.items():
+        if isinstance(value, dict):
+            for name in value:
+                assert torch.equal(ours[key][name], value[name]), name
+        else:
+            assert ours[key].dtype == value.dtype and torch.equal(ours[key], value), key
+
+
+def test_the_simulation_backend_follows_device_batch_and_perturbation():
+    assert choose_sim_backend("auto", "cuda", 64, None) == "physx_cuda"
+    assert choose_sim_backend("auto", "cuda:1", 64, "camera_yaw:10") == "physx_cuda"
+    assert choose_sim_backend("auto", "cuda", 1, None) == "physx_cpu"  # one env: CPU simulation, GPU rendering
+    assert choose_sim_backend("auto", "cuda", 64, "noise:16") == "physx_cpu"  # ray tracing: one env per process
+    assert choose_sim_backend("auto", "cpu", 3, None) == "physx_cpu"
+    assert choose_sim_backend("physx_cpu", "cuda", 64, None) == "physx_cpu"
+    with pytest.raises(ValueError, match="physx_cuda.*needs --policy.device=cuda"):
+        choose_sim_backend("physx_cuda", "cpu", 4, None)
+    with pytest.raises(ValueError, match="--eval.sim_backend must be auto or one of physx_cpu, physx_cuda"):
+        choose_sim_backend("gpu", "cuda", 4, None)
+    # the env's own check, before ManiSkill starts
+    assert check_sim_backend(None, 1, "cpu") == "physx_cpu" and check_sim_backend(None, 8, "cuda") == "physx_cuda"
+    with pytest.raises(ValueError, match=r"GPU simulation \(physx_cuda\) needs a CUDA device"):
+        check_sim_backend(None, 8, "cpu")
+    with pytest.raises(ValueError, match="CPU simulation holds one env per process; got num_envs=2"):
+        check_sim_backend("physx_cpu", 2, "cuda")
+    with pytest.raises(ValueError, match="num_envs must be a whole number >= 1"):
+        check_sim_backend(None, 0, "cuda")

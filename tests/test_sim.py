@@ -381,6 +381,37 @@ def test_lockstep_evaluation_gives_each_seed_its_sequential_result(
     assert len(set(rewards[0])) == 4  # the seeds' episodes differ, so the comparison can tell them apart
 
 
+def test_the_gpu_simulations_batched_path_runs_on_cpu_at_one_env_and_matches_the_gym_path(checkpoint):
+    """What ManiSkill's GPU simulation runs through (one env object, `reset_all` / `step_all`, observations kept as
+    tensors from the simulator to the policy) is the CPU simulation's at num_envs=1: a point-cloud ACT policy's
+    episodes, under a camera perturbation, come out exactly as through the gym API's NumPy arrays."""
+    from lerobot_obsbench.envs.evaluate import _run_wave
+    from lerobot_obsbench.envs.maniskill import make_obsbench_env
+    from lerobot_obsbench.envs.vector import BatchedEnvs, InProcessEnvs
+    from lerobot_obsbench.policies.loading import load_policy
+
+    policy, pre, post = load_policy(checkpoint, "cpu")
+    env_kwargs = dict(task="PickCube-v1", image_size=SIZE, episode_length=10, perturbation="camera_yaw:10")
+    records = {}
+    for name, envs in (
+        ("gym", InProcessEnvs(make_obsbench_env, env_kwargs)),
+        ("batched", BatchedEnvs(make_obsbench_env, {**env_kwargs, "sim_backend": "physx_cpu"}, 1)),
+    ):
+        try:
+            first = envs.reset([3])
+            records[name] = [r for seed in (3, 4) for r in _run_wave(envs, [seed], policy, pre, post, 10, None, "cpu")]
+        finally:
+            envs.close()
+        if name == "batched":  # tensors, batched, with the schema's dtypes
+            assert first["pixels"]["base_camera"].dtype == torch.uint8
+            assert first["robot_state"]["depth.base_camera"].dtype == torch.uint16
+            assert first["robot_state"]["cam2world.base_camera"].shape == (1, 4, 4)
+        else:
+            assert isinstance(first["pixels"]["base_camera"], np.ndarray)
+    assert records["batched"] == records["gym"]
+    assert len({r["reward_sum"] for r in records["gym"]}) == 2  # two different episodes
+
+
 def test_stock_lerobot_eval_runs_envs_in_parallel_with_the_same_episodes(checkpoint, tmp_path):
     """`lerobot-eval --eval.batch_size 2 --eval.use_async_envs true` steps two obsbench envs in worker processes;
     each episode's success and summed reward are those of one env at a time (LeRobot seeds them alike)."""

@@ -19,7 +19,8 @@ INTERRUPTED = "no result was written (--out is written once every episode is don
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from lerobot_obsbench.envs.maniskill import CONTROL_MODES, DEFAULT_CONTROL_MODE
+    from lerobot_obsbench.envs.maniskill import CONTROL_MODES, DEFAULT_CONTROL_MODE, SIM_BACKENDS
+    from lerobot_obsbench.envs.vector import DEFAULT_BATCH_SIZE
 
     p.add_argument("--policy.path", dest="policy_path", required=True, help="pretrained_model directory")
     p.add_argument("--env.task", dest="task", required=True)
@@ -46,8 +47,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         dest="batch_size",
         type=positive_int,
         default=None,
-        help="episodes run in lockstep, each env in a process of its own, one batched policy call per step "
-        "(default: the measured best for the device, 2 on cpu); 1: one episode at a time in this process",
+        help="episodes run in lockstep, one batched policy call per step (default: the measured best for the "
+        f"device, {DEFAULT_BATCH_SIZE['cpu']} on cpu); 1: one episode at a time in this process",
+    )
+    p.add_argument(
+        "--eval.sim_backend",
+        dest="sim_backend",
+        default="auto",
+        choices=("auto", *SIM_BACKENDS),
+        help="physx_cpu: ManiSkill's CPU simulation, each env in a process of its own; physx_cuda: all N envs in "
+        "ManiSkill's GPU simulation in this process (results differ from the CPU simulation's); auto: physx_cuda "
+        "for N > 1 on a cuda device, else physx_cpu",
     )
     p.add_argument("--videos", type=Path, default=None, help="write one mp4 per episode here")
     p.add_argument("--out", type=Path, default=None, help="write the JSON result here (a file, checked first)")
@@ -75,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
         asset_dir=args.asset_dir,
         perturbation=args.perturbation,
         batch_size=args.batch_size or default_batch_size(args.device),
+        sim_backend=args.sim_backend,
     )
     write_result(result, args.out)
     lo, hi = result["ci95"]

@@ -92,19 +92,22 @@ class Task:
         return self.maniskill_id or self.name
 
     def initialize(self, ms_env) -> bool:
-        """After ManiSkill's own reset: change the episode's initial state (a variant's randomization, drawn from
-        `ms_env._episode_rng`, so it follows the episode seed). Returns whether it changed anything."""
+        """After ManiSkill's own reset of all its envs: change each episode's initial state (a variant's
+        randomization, drawn from env i's `ms_env._batched_episode_rng[i]`, so it follows that env's seed).
+        Returns whether it changed anything."""
         return False
 
-    def privileged_state(self, ms_env) -> np.ndarray:
-        """The oracle's observation: the poses of `privileged_actors`, (7 * O,) float32."""
-        poses = [first(getattr(ms_env, name).pose.raw_pose) for name in self.privileged_actors]
-        return np.concatenate(poses).astype(np.float32)
+    def privileged_state(self, ms_env):
+        """The oracle's observation: the poses of `privileged_actors`, (num_envs, 7 * O) float32 tensor."""
+        import torch
 
-    def milestone(self, name: str, ms_env, info: dict, success: bool) -> bool:
-        """Whether milestone `name` holds at this step (`ms_env`: the unwrapped ManiSkill env)."""
+        return torch.cat([getattr(ms_env, name).pose.raw_pose for name in self.privileged_actors], dim=1).float()
+
+    def milestone(self, name: str, ms_env, info: dict, success):
+        """Whether milestone `name` holds at this step, per env: (num_envs,) bool tensor (`ms_env`: the unwrapped
+        ManiSkill env, `info` its batched step info, `success` its (num_envs,) success)."""
         if name == "grasp":
-            return bool(first(ms_env.agent.is_grasping(getattr(ms_env, self.grasped)))[0])
+            return ms_env.agent.is_grasping(getattr(ms_env, self.grasped)).reshape(-1).bool()
         raise KeyError(f"{self.name} has no rule for milestone {name!r}")
 
     def make_expert(self, env):

@@ -14,6 +14,13 @@ with that slot's episode seed, the stream `torch.manual_seed(seed)` gives one ep
 lockstep therefore computes what sequential evaluation computes; only the batched matrix products round
 differently (1e-7 to 1e-6 in the networks' outputs on CPU), which can at most flip an episode that sits on a knife
 edge.
+
+On a CUDA device, lockstep defaults to ManiSkill's GPU simulation (`sim_backend` physx_cuda): the wave's N envs
+simulate and render in one process and their observations stay on the GPU up to the policy. Its results are not
+those of the CPU simulation, seed for seed: the physics engine differs, and ManiSkill seeds a whole batch's
+torch-drawn initial states from its first env's seed, so an episode's start depends on the wave it runs in
+(deterministic for the same seeds and N). Compare checkpoints within one simulation backend; `physx_cpu` keeps the
+CPU simulation on any device.
 """
 
 from __future__ import annotations
@@ -32,6 +39,7 @@ from lerobot_obsbench.envs.maniskill import (
     ACTION_DIMS,
     CONTROL_FPS,
     DEFAULT_CONTROL_MODE,
+    SIM_BACKENDS,
     STATE_DIM,
     make_obsbench_env,
 )
@@ -47,12 +55,39 @@ def check_compatible(config, cameras: list[str], image_size: int, control_mode: 
     check_compatibility(config, cameras, (image_size, image_size), STATE_DIM, ACTION_DIMS[control_mode])
 
 
-def _stacked(observations: list):
-    """Per-slot env observations -> one batch (each leaf stacked on a new first axis)."""
-    first = observations[0]
-    if isinstance(first, dict):
-        return {k: _stacked([o[k] for o in observations]) for k in first}
-    return np.stack(observations)
+def policy_observation(observation: dict) -> dict:
+    """LeRobot's `preprocess_observation` (what stock `lerobot-eval` feeds a policy), also for an observation
+    batch of tensors that a batched simulator keeps on its device: the same keys, layouts and scaling, without a
+    round trip through host memory."""
+    from lerobot.envs.utils import preprocess_observation
+    from lerobot.utils.constants import OBS_ENV_STATE, OBS_IMAGES, OBS_STATE, OBS_STR
+
+    leaves = [*observation.get("pixels", {}).values(), observation.get("agent_pos")]
+    if not any(torch.is_tensor(leaf) for leaf in leaves):
+        return preprocess_observation(observation)
+    batch = {
+        f"{OBS_IMAGES}.{cam}": image.permute(0, 3, 1, 2).float() / 255
+        for cam, image in observation.get("pixels", {}).items()
+    }
+    batch[OBS_STATE] = observation["agent_pos"].float()
+    if "environment_state" in observation:
+        batch[OBS_ENV_STATE] = observation["environment_state"].float()
+    if "robot_state" in observation:
+        batch[f"{OBS_STR}.robot_state"] = observation["robot_state"]
+    return batch
+
+
+def choose_sim_backend(sim_backend: str, device: str, batch_size: int, perturbation: str | None) -> str:
+    """`auto`: ManiSkill's GPU simulation for lockstep (N > 1) on a CUDA device, unless the perturbation ray-traces
+    (which ManiSkill renders for one env per process); else its CPU simulation, one env per worker process."""
+    if sim_backend not in ("auto", *SIM_BACKENDS):
+        raise ValueError(f"--eval.sim_backend must be auto or one of {', '.join(SIM_BACKENDS)}; got {sim_backend!r}")
+    if sim_backend == "physx_cuda" and not device.startswith("cuda"):
+        raise ValueError("--eval.sim_backend=physx_cuda (ManiSkill's GPU simulation) needs --policy.device=cuda")
+    if sim_backend != "auto":
+        return sim_backend
+    on_gpu = device.startswith("cuda") and batch_size > 1 and not str(perturbation).startswith("noise")
+    return "physx_cuda" if on_gpu else "physx_cpu"
 
 
 def _episode_noise(policy, generators: list[torch.Generator]):
@@ -76,24 +111,25 @@ def evaluate(
     split: str = "test",
     progress_file: Path | None = None,
     batch_size: int = 1,
+    sim_backend: str = "auto",
 ) -> dict:
     """Success rate of a checkpoint over the `split`'s first `episodes` seeds (`eval_seeds`), `batch_size`
     episodes in lockstep. The policy runs on `device` and so does the simulator's renderer (its GPU for cuda).
-    `progress_file` receives {"done", "episodes", "successes"} after every finished episode (for a grid's live
-    progress)."""
-    from lerobot.envs.utils import preprocess_observation
-
+    `sim_backend` (`choose_sim_backend`): physx_cpu runs each env in a worker process of its own, physx_cuda all
+    of them in ManiSkill's GPU simulation. `progress_file` receives {"done", "episodes", "successes"} after every
+    finished episode (for a grid's live progress)."""
     spec = task_spec(task)
     if batch_size < 1:
         raise ValueError(f"--eval.batch_size must be >= 1; got {batch_size}")
+    seeds = eval_seeds(episodes, split)
+    slots = min(batch_size, len(seeds))
+    sim = choose_sim_backend(sim_backend, device, slots, perturbation)
     policy, pre, post = load_policy(policy_path, device)
     cameras = getattr(policy.config, "cameras", None) or ["base_camera"]
     resolution = getattr(policy.config, "camera_resolution", None)
     size = image_size or (resolution[0] if resolution else 128)
     check_compatible(policy.config, cameras, size, control_mode)  # before any simulator starts
     steps = episode_length or spec.max_steps
-    seeds = eval_seeds(episodes, split)
-    slots = min(batch_size, len(seeds))
     env_kwargs = dict(
         task=task,
         cameras=cameras,
@@ -108,11 +144,13 @@ def evaluate(
     label = f"eval {task}" + (f" [{perturbation}]" if perturbation not in (None, "none") else "")
     bar = tqdm(total=len(seeds), desc=label, unit="ep", disable=not progress)
     records = {}
-    envs = make_envs(make_obsbench_env, env_kwargs, slots)
+    if sim == "physx_cuda":
+        env_kwargs["sim_backend"] = sim
+    envs = make_envs(make_obsbench_env, env_kwargs, slots, batched=sim == "physx_cuda")
     try:
         for first in range(0, len(seeds), slots):
             wave = seeds[first : first + slots]
-            for record in _run_wave(envs, wave, policy, pre, post, preprocess_observation, steps, video_dir, device):
+            for record in _run_wave(envs, wave, policy, pre, post, steps, video_dir, device):
                 records[record["seed"]] = record
                 wins = sum(r["success"] for r in records.values())
                 bar.update(1)
@@ -141,32 +179,32 @@ def evaluate(
         "control_mode": control_mode,
         "perturbation": perturbation or "none",
         "batch_size": slots,
+        "sim_backend": sim,
         "wall_s": round(time.time() - start, 1),
     }
 
 
-def _run_wave(envs, wave, policy, pre, post, preprocess_observation, steps, video_dir, device):
+def _run_wave(envs, wave, policy, pre, post, steps, video_dir, device):
     """Run the episodes of `wave` (one seed per slot) together to their ends, yielding each one's record as it
     finishes."""
     torch.manual_seed(wave[0])  # one episode at a time (batch size 1) this is all the seeding there is
     # one noise stream per episode, continued across its steps: what torch.manual_seed(seed) gives it alone
     generators = [torch.Generator(device=device).manual_seed(seed) for seed in wave]
     policy.reset()
-    observations = [obs for obs, _ in envs.reset(wave)]
+    observations = envs.reset(wave)
     frames = [[image] for image in envs.render(range(len(wave)))] if video_dir else None
     lengths, rewards = [0] * len(wave), [0.0] * len(wave)
     running = list(range(len(wave)))
     while running:
-        batch = pre(preprocess_observation(_stacked(observations)))
+        batch = pre(policy_observation(observations))
         with torch.inference_mode(), _episode_noise(policy, generators):
-            actions = post(policy.select_action(batch)).cpu().numpy()
-        results = envs.step(running, [actions[slot] for slot in running])
+            actions = post(policy.select_action(batch))
+        observations, outcomes = envs.step(running, actions)  # a finished slot keeps its last observation
         if frames is not None:
             for slot, image in zip(running, envs.render(running), strict=True):
                 frames[slot].append(image)
         still = []
-        for slot, (obs, reward, terminated, truncated, info) in zip(running, results, strict=True):
-            observations[slot] = obs  # a finished slot keeps its last observation
+        for slot, (reward, terminated, truncated, info) in zip(running, outcomes, strict=True):
             lengths[slot] += 1
             rewards[slot] += reward
             if info["is_success"] or terminated or truncated or lengths[slot] >= steps:

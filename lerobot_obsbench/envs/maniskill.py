@@ -22,7 +22,7 @@ import os
 import gymnasium as gym
 import numpy as np
 
-from lerobot_obsbench.envs.base_task import TaskError, asset_help, first, missing_assets, task_spec, to_numpy
+from lerobot_obsbench.envs.base_task import TaskError, asset_help, missing_assets, task_spec, to_numpy
 from lerobot_obsbench.envs.perturbations import apply_scene_perturbation, camera_overrides, parse_perturbation
 from lerobot_obsbench.errors import ObsBenchError
 from lerobot_obsbench.schema import (
@@ -44,6 +44,8 @@ ROBOT_TYPE = "panda"  # every task's robot, as LeRobot datasets record it (robot
 # Controller -> action size; the paper's is the first (Δpos, Δrot axis-angle, gripper).
 ACTION_DIMS = {"pd_ee_delta_pose": 7, "pd_joint_pos": 8}
 CONTROL_MODES = tuple(ACTION_DIMS)
+# ManiSkill's simulation backends: one env per process on the CPU, many per process on a GPU
+SIM_BACKENDS = ("physx_cpu", "physx_cuda")
 DEFAULT_CONTROL_MODE = CONTROL_MODES[0]
 STATE_DIM = 16  # qpos (9) + TCP pose (7)
 
@@ -76,20 +78,24 @@ def import_maniskill(asset_dir: str | None = None):
     return mani_skill.envs
 
 
-def cam2world_from_extrinsic(extrinsic_cv: np.ndarray) -> np.ndarray:
-    """OpenCV camera -> world (4, 4) from ManiSkill's world -> OpenCV camera extrinsic (3, 4)."""
-    world2cam = np.eye(4)
-    world2cam[:3] = extrinsic_cv
-    return np.linalg.inv(world2cam).astype(np.float32)
+def cam2world_from_extrinsic(extrinsic_cv):
+    """OpenCV camera -> world (..., 4, 4) float32 from ManiSkill's world -> OpenCV camera extrinsics (..., 3, 4)
+    (a tensor on any device; inverted in float64)."""
+    import torch
+
+    world2cam = torch.eye(4, dtype=torch.float64, device=extrinsic_cv.device).expand(*extrinsic_cv.shape[:-2], 4, 4)
+    world2cam = world2cam.clone()
+    world2cam[..., :3, :] = extrinsic_cv.double()
+    return torch.linalg.inv(world2cam).float()
 
 
-def opencv_intrinsics(sapien_K: np.ndarray) -> np.ndarray:
-    """SAPIEN's `intrinsic_cv` puts pixel centres at half-integers (cx = W/2 for a centred camera); the schema
-    uses OpenCV's convention (centres at integers), so the principal point moves by half a pixel. Without this,
-    unprojected points are off by half a pixel (~8 mm at 0.5 m for a 64² camera with a 90° field of view)."""
-    K = np.array(sapien_K, dtype=np.float32)
-    K[0, 2] -= 0.5
-    K[1, 2] -= 0.5
+def opencv_intrinsics(sapien_K):
+    """SAPIEN's `intrinsic_cv` (..., 3, 3) puts pixel centres at half-integers (cx = W/2 for a centred camera); the
+    schema uses OpenCV's convention (centres at integers), so the principal point moves by half a pixel. Without
+    this, unprojected points are off by half a pixel (~8 mm at 0.5 m for a 64² camera with a 90° field of view)."""
+    K = sapien_K.float().clone()
+    K[..., 0, 2] -= 0.5
+    K[..., 1, 2] -= 0.5
     return K
 
 
@@ -101,6 +107,24 @@ def render_backend(device: str | None) -> str:
 
         device = "cuda" if torch.cuda.is_available() else "cpu"
     return device if device.startswith("cuda") else "cpu"
+
+
+def check_sim_backend(sim_backend: str | None, num_envs: int, render_device: str) -> str:
+    """ManiSkill's simulation for `num_envs` envs in one process: its CPU simulation holds one env per process,
+    its GPU simulation (physx_cuda) many, and needs a CUDA device. None: the one that can hold them."""
+    if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
+        raise ValueError(f"num_envs must be a whole number >= 1; got {num_envs!r}")
+    sim_backend = sim_backend or ("physx_cuda" if num_envs > 1 else "physx_cpu")
+    if sim_backend not in SIM_BACKENDS:
+        raise ValueError(f"sim_backend must be one of {SIM_BACKENDS}; got {sim_backend!r}")
+    if sim_backend == "physx_cuda" and render_device == "cpu":
+        raise ValueError(
+            "ManiSkill's GPU simulation (physx_cuda) needs a CUDA device (device='cuda'). On a CPU, envs run in "
+            "lockstep one per worker process instead (obsbench eval --eval.batch_size N)."
+        )
+    if sim_backend == "physx_cpu" and num_envs > 1:
+        raise ValueError(f"ManiSkill's CPU simulation holds one env per process; got num_envs={num_envs}")
+    return sim_backend
 
 
 class ObsBenchEnv(gym.Env):
@@ -118,11 +142,14 @@ class ObsBenchEnv(gym.Env):
         render_mode: str | None = "rgb_array",
         perturbation: str | None = None,
         device: str | None = None,
+        num_envs: int = 1,
+        sim_backend: str | None = None,
     ):
         spec = task_spec(task)
         # SAPIEN renders on the GPU of `device` (cuda, cuda:N), else on the CPU; asked for explicitly, so a
         # CPU-only machine gets no "CUDA not found, falling back" warning.
         self.render_backend = render_backend(device)
+        self.num_envs, self.sim_backend = num_envs, check_sim_backend(sim_backend, num_envs, self.render_backend)
         if control_mode not in CONTROL_MODES:
             raise ValueError(f"control_mode must be one of {CONTROL_MODES}; got {control_mode!r}")
         if not isinstance(image_size, int) or image_size < MIN_IMAGE_SIZE:
@@ -138,6 +165,11 @@ class ObsBenchEnv(gym.Env):
         self.task_description = spec.description
         self._next_seed = seed
         self.perturbation = parse_perturbation(perturbation)
+        if num_envs > 1 and self.perturbation and self.perturbation.kind == "noise":
+            raise ValueError(
+                f"{self.perturbation.name} renders with ray tracing, which ManiSkill runs for one env per process "
+                "only: evaluate it with num_envs=1 (lockstep on CPU workers: --policy.device=cpu)."
+            )
         sensor_configs = dict(width=image_size, height=image_size)
         if spec.camera is not None:
             from mani_skill.utils import sapien_utils
@@ -164,6 +196,7 @@ class ObsBenchEnv(gym.Env):
         if unknown:
             raise ValueError(f"{task} has no camera {unknown}; its cameras are {available} (--env.cameras).")
         self.unwrapped_ms = self._env.unwrapped
+        self.device = self.unwrapped_ms.device  # where reset_all / step_all keep their tensors
         self.action_space = gym.spaces.Box(-1.0, 1.0, self.unwrapped_ms.single_action_space.shape, np.float32)
         goal_dim = sum(spec.goal.values())
         size = (image_size, image_size)
@@ -196,8 +229,9 @@ class ObsBenchEnv(gym.Env):
                 control_mode=control_mode,
                 render_mode="rgb_array",
                 sensor_configs=sensor_configs,
-                num_envs=1,
+                num_envs=self.num_envs,
                 max_episode_steps=max_steps,
+                sim_backend=self.sim_backend,
                 render_backend=self.render_backend,
             )
             obs, _ = self._env.reset(seed=0)
@@ -209,53 +243,99 @@ class ObsBenchEnv(gym.Env):
 
     # ---- observation conversion --------------------------------------------------------------------------
 
-    def schema_frame(self, obs: dict) -> dict[str, np.ndarray]:
-        """ManiSkill observation (batch of 1) -> dataset schema keys (lerobot_obsbench/schema.py)."""
-        frame = {}
+    def schema_frames(self, obs: dict) -> dict:
+        """ManiSkill observation -> dataset schema keys (lerobot_obsbench/schema.py), batched over the envs:
+        tensors (num_envs, ...) on the simulator's device."""
+        import torch
+
+        frames = {}
         for cam in self.cameras:
             data, param = obs["sensor_data"][cam], obs["sensor_param"][cam]
-            frame[image_key(cam)] = to_numpy(data["rgb"][0]).astype(np.uint8)
-            frame[depth_key(cam)] = np.clip(to_numpy(data["depth"][0]), 0, None).astype(np.uint16)
-            frame[intrinsics_key(cam)] = opencv_intrinsics(to_numpy(param["intrinsic_cv"][0]))
-            frame[cam2world_key(cam)] = cam2world_from_extrinsic(to_numpy(param["extrinsic_cv"][0]))
-        state = np.concatenate([first(obs["agent"]["qpos"]), first(obs["extra"]["tcp_pose"])])
-        frame[STATE_KEY] = state.astype(np.float32)
+            frames[image_key(cam)] = data["rgb"].to(torch.uint8)
+            frames[depth_key(cam)] = data["depth"].clamp_min(0).to(torch.uint16)
+            frames[intrinsics_key(cam)] = opencv_intrinsics(param["intrinsic_cv"])
+            frames[cam2world_key(cam)] = cam2world_from_extrinsic(param["extrinsic_cv"])
+        frames[STATE_KEY] = torch.cat([obs["agent"]["qpos"], obs["extra"]["tcp_pose"]], dim=1).float()
         if self.spec_.privileged_actors:
-            frame[PRIVILEGED_STATE_KEY] = self.spec_.privileged_state(self._env.unwrapped)
+            frames[PRIVILEGED_STATE_KEY] = self.spec_.privileged_state(self.unwrapped_ms)
         if self.spec_.goal:
-            frame[ENV_STATE_KEY] = np.concatenate([first(obs["extra"][k]) for k in self.spec_.goal]).astype(np.float32)
-        return frame
+            goal = [obs["extra"][k].reshape(self.num_envs, -1) for k in self.spec_.goal]
+            frames[ENV_STATE_KEY] = torch.cat(goal, dim=1).float()
+        return frames
+
+    def schema_frame(self, obs: dict) -> dict[str, np.ndarray]:
+        """The first env's frame of `schema_frames`, as NumPy arrays (what datasets record)."""
+        return {key: to_numpy(value[0]) for key, value in self.schema_frames(obs).items()}
 
     to_env_observation = staticmethod(frame_to_env_observation)
 
-    # ---- gym API -----------------------------------------------------------------------------------------
+    # ---- all envs at once: tensors (num_envs, ...) on the simulator's device -----------------------------------
 
-    def _info(self, info: dict) -> dict:
-        success = bool(first(info["success"])[0]) if "success" in info else False
-        for name in self.spec_.sub_success:
-            self._milestones[name] = self._milestones.get(name, False) or self.spec_.milestone(
-                name, self.unwrapped_ms, info, success
-            )
+    def _infos(self, info: dict) -> dict:
+        import torch
+
+        success = (
+            info["success"].reshape(-1).bool()
+            if "success" in info
+            else torch.zeros(self.num_envs, dtype=torch.bool, device=self.unwrapped_ms.device)
+        )
+        for name in self.spec_.sub_success:  # achieved at any step so far
+            now = self.spec_.milestone(name, self.unwrapped_ms, info, success)
+            self._milestones[name] = now | self._milestones[name] if name in self._milestones else now
         return {"is_success": success, **{f"sub_success/{k}": v for k, v in self._milestones.items()}}
+
+    def reset_all(self, seeds=None, options: dict | None = None) -> tuple[dict, dict]:
+        """Reset every env, env i with `seeds[i]` (None: unseeded); the batched env observation and info."""
+        seed = None if seeds is None else [int(s) for s in seeds]
+        if seed is not None and len(seed) != self.num_envs:
+            raise ValueError(f"reset_all needs one seed per env ({self.num_envs}); got {len(seed)}")
+        obs, info = self._env.reset(seed=seed, options=options)
+        if self.spec_.initialize(self.unwrapped_ms):
+            obs = self.unwrapped_ms.get_obs()
+        self._milestones = {}
+        return self.to_env_observation(self.schema_frames(obs)), self._infos(info)
+
+    def step_all(self, actions) -> tuple:
+        """Step every env with its row of `actions` (num_envs, A): batched observation, reward, terminated,
+        truncated (num_envs,) and info."""
+        obs, reward, terminated, truncated, info = self._env.step(actions)
+        return (
+            self.to_env_observation(self.schema_frames(obs)),
+            reward.reshape(-1),
+            terminated.reshape(-1),
+            truncated.reshape(-1),
+            self._infos(info),
+        )
+
+    def render_all(self):
+        """Every env's viewer image, (num_envs, H, W, 3) uint8 on the renderer's device."""
+        return self._env.render()
+
+    # ---- gym API: one env ----------------------------------------------------------------------------------
+
+    def _first_env(self, value):
+        if self.num_envs != 1:
+            raise RuntimeError(f"this ObsBenchEnv holds {self.num_envs} envs: use reset_all / step_all / render_all")
+        if isinstance(value, dict):
+            return {key: self._first_env(v) for key, v in value.items()}
+        return to_numpy(value[0])
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         if seed is None and self._next_seed is not None:
             seed, self._next_seed = self._next_seed, self._next_seed + 1
-        obs, info = self._env.reset(seed=seed, options=options)
-        if self.spec_.initialize(self.unwrapped_ms):
-            obs = self.unwrapped_ms.get_obs()
-        self._milestones = {}
-        return self.to_env_observation(self.schema_frame(obs)), self._info(info)
+        obs, info = self.reset_all(None if seed is None else [seed], options)
+        return self._first_env(obs), {key: bool(v) for key, v in self._first_env(info).items()}
 
     def step(self, action):
-        obs, reward, terminated, truncated, info = self._env.step(np.asarray(action, dtype=np.float32))
+        actions = np.asarray(action, dtype=np.float32)[None]
+        obs, reward, terminated, truncated, info = self.step_all(actions)
         return (
-            self.to_env_observation(self.schema_frame(obs)),
-            float(first(reward)[0]),
-            bool(first(terminated)[0]),
-            bool(first(truncated)[0]),
-            self._info(info),
+            self._first_env(obs),
+            float(self._first_env(reward)),
+            bool(self._first_env(terminated)),
+            bool(self._first_env(truncated)),
+            {key: bool(v) for key, v in self._first_env(info).items()},
         )
 
     def raw_observation(self) -> dict:
@@ -263,7 +343,7 @@ class ObsBenchEnv(gym.Env):
         return self.unwrapped_ms.get_obs()
 
     def render(self):
-        return to_numpy(self._env.render())[0]
+        return self._first_env(self.render_all())
 
     def close(self):
         self._env.close()

@@ -1,9 +1,16 @@
 """Several ObsBench envs stepped together, for lockstep evaluation (`envs.evaluate`).
 
-ManiSkill's CPU simulation runs one env per process, so `SubprocessEnvs` keeps each env in a worker process of
-its own: the parent sends every slot's command first and then collects the answers, so the slots simulate and
-render at the same time, on as many cores as there are. `InProcessEnvs` is the same interface over one env in
-this process (batch size 1: sequential evaluation, exactly as before lockstep existed).
+Three backends behind one slot interface: `reset(seeds)` gives the batch of first observations (slot i: seed i);
+`step(slots, actions)` steps the listed slots with their rows of the batched `actions` and gives the observation
+batch of every slot (a slot not stepped keeps its last) and each stepped slot's (reward, terminated, truncated,
+info); `render(slots)` their viewer images.
+
+- `SubprocessEnvs`: ManiSkill's CPU simulation runs one env per process, so each env lives in a worker process of
+  its own: the parent sends every slot's command first and then collects the answers, so the slots simulate and
+  render at the same time, on as many cores as there are.
+- `InProcessEnvs`: one env in this process (batch size 1: sequential evaluation, exactly as before lockstep).
+- `BatchedEnvs`: one env object that simulates all slots in one process (`num_envs`: ManiSkill's GPU
+  simulation and rendering), whose observations stay tensors on its device, from the renderer to the policy.
 
 Workers are started with `forkserver` (as LeRobot's own async vector envs are): a fork of a process holding
 torch's threads or a Vulkan device is not safe. Each worker runs torch on one thread; an error in a worker is
@@ -72,18 +79,35 @@ def _worker(connection, make_env: Callable, env_kwargs: dict) -> None:
         connection.close()
 
 
+def stacked(observations: list):
+    """Per-slot observations -> one batch (each leaf stacked on a new first axis)."""
+    first = observations[0]
+    if isinstance(first, dict):
+        return {k: stacked([o[k] for o in observations]) for k in first}
+    return np.stack(observations)
+
+
+def _action_rows(actions, slots: Sequence[int]) -> list[np.ndarray]:
+    rows = actions.detach().cpu().numpy() if hasattr(actions, "detach") else np.asarray(actions)
+    return [rows[slot] for slot in slots]
+
+
 class InProcessEnvs:
-    """One env in this process, behind the slot interface of `SubprocessEnvs`."""
+    """One env in this process, behind the slot interface."""
 
     def __init__(self, make_env: Callable, env_kwargs: dict):
         self.env = make_env(**env_kwargs)
 
-    def reset(self, seeds: Sequence[int]) -> list[tuple[dict, dict]]:
+    def reset(self, seeds: Sequence[int]) -> dict:
         (seed,) = seeds
-        return [self.env.reset(seed=seed)]
+        self.observations = [self.env.reset(seed=seed)[0]]
+        return stacked(self.observations)
 
-    def step(self, slots: Sequence[int], actions: Sequence[np.ndarray]) -> list[tuple]:
-        return [self.env.step(action) for action in actions]
+    def step(self, slots: Sequence[int], actions) -> tuple[dict, list[tuple]]:
+        results = [self.env.step(action) for action in _action_rows(actions, slots)]
+        for slot, (obs, *_) in zip(slots, results, strict=True):
+            self.observations[slot] = obs
+        return stacked(self.observations), [tuple(outcome) for _, *outcome in results]
 
     def render(self, slots: Sequence[int]) -> list[np.ndarray]:
         return [self.env.render() for _ in slots]
@@ -131,17 +155,21 @@ class SubprocessEnvs:
             results.append(result)
         return results
 
-    def reset(self, seeds: Sequence[int]) -> list[tuple[dict, dict]]:
+    def reset(self, seeds: Sequence[int]) -> dict:
         """Reset slots 0..len(seeds)-1 with `seeds`, all at once."""
         for slot, seed in enumerate(seeds):
             self.connections[slot].send(("reset", int(seed)))
-        return self._collect(range(len(seeds)))
+        self.observations = [obs for obs, _ in self._collect(range(len(seeds)))]
+        return stacked(self.observations)
 
-    def step(self, slots: Sequence[int], actions: Sequence[np.ndarray]) -> list[tuple]:
-        """Step `slots` with their actions, all at once; their (obs, reward, terminated, truncated, info)."""
-        for slot, action in zip(slots, actions, strict=True):
+    def step(self, slots: Sequence[int], actions) -> tuple[dict, list[tuple]]:
+        """Step `slots` with their rows of `actions`, all at once."""
+        for slot, action in zip(slots, _action_rows(actions, slots), strict=True):
             self.connections[slot].send(("step", action))
-        return self._collect(slots)
+        results = self._collect(slots)
+        for slot, (obs, *_) in zip(slots, results, strict=True):
+            self.observations[slot] = obs
+        return stacked(self.observations), [tuple(outcome) for _, *outcome in results]
 
     def render(self, slots: Sequence[int]) -> list[np.ndarray]:
         for slot in slots:
@@ -163,8 +191,61 @@ class SubprocessEnvs:
                 process.kill()
 
 
-def make_envs(make_env: Callable, env_kwargs: dict, size: int) -> InProcessEnvs | SubprocessEnvs:
-    """`size` envs for lockstep evaluation: one in this process, or one per worker process."""
+def _first_rows(batch, rows: int):
+    if isinstance(batch, dict):
+        return {key: _first_rows(value, rows) for key, value in batch.items()}
+    return batch[:rows]
+
+
+class BatchedEnvs:
+    """`size` envs simulated together by one env object, `make_env(**env_kwargs, num_envs=size)`, that has
+    `reset_all(seeds)`, `step_all(actions)` and `render_all()` over all its envs (`ObsBenchEnv` on ManiSkill's GPU
+    simulation). Its observations stay tensors on its device.
+
+    All envs step together: a finished slot is stepped on with its row of the policy's actions, and what it returns
+    is not read. A wave shorter than `size` (the last one) fills the spare envs with its last seed, not read either.
+    """
+
+    def __init__(self, make_env: Callable, env_kwargs: dict, size: int):
+        self.env = make_env(**env_kwargs, num_envs=size)
+        self.size, self.rows = size, size
+
+    def reset(self, seeds: Sequence[int]) -> dict:
+        if not 0 < len(seeds) <= self.size:
+            raise ValueError(f"a wave of {len(seeds)} seeds for {self.size} batched envs")
+        self.rows = len(seeds)
+        observations, _ = self.env.reset_all([*seeds, *[seeds[-1]] * (self.size - len(seeds))])
+        return _first_rows(observations, self.rows)
+
+    def step(self, slots: Sequence[int], actions) -> tuple[dict, list[tuple]]:
+        import torch
+
+        actions = torch.as_tensor(actions, device=self.env.device)
+        if len(actions) < self.size:  # the spare envs of a short wave stand still
+            actions = torch.cat([actions, actions.new_zeros(self.size - len(actions), *actions.shape[1:])])
+        observations, reward, terminated, truncated, info = self.env.step_all(actions)
+        reward, terminated, truncated = reward.tolist(), terminated.tolist(), truncated.tolist()
+        info = {key: value.tolist() for key, value in info.items()}
+        outcomes = [
+            (reward[slot], terminated[slot], truncated[slot], {key: value[slot] for key, value in info.items()})
+            for slot in slots
+        ]
+        return _first_rows(observations, self.rows), outcomes
+
+    def render(self, slots: Sequence[int]) -> list[np.ndarray]:
+        images = self.env.render_all()
+        images = images.detach().cpu().numpy() if hasattr(images, "detach") else np.asarray(images)
+        return [images[slot] for slot in slots]
+
+    def close(self) -> None:
+        self.env.close()
+
+
+def make_envs(make_env: Callable, env_kwargs: dict, size: int, batched: bool = False):
+    """`size` envs for lockstep evaluation: one in this process, one per worker process, or (`batched`) all in one
+    env object that simulates them together."""
     if size < 1:
         raise ValueError(f"the evaluation batch size must be >= 1; got {size}")
+    if batched:
+        return BatchedEnvs(make_env, env_kwargs, size)
     return InProcessEnvs(make_env, env_kwargs) if size == 1 else SubprocessEnvs(make_env, env_kwargs, size)

@@ -44,11 +44,11 @@ class PegInsertionSide(Task):
     sub_success = ("grasp", "align", "insert")
     expert = PegInsertionSideExpert
 
-    def milestone(self, name: str, ms_env, info: dict, success: bool) -> bool:
+    def milestone(self, name: str, ms_env, info: dict, success):
         if name == "insert":
             return success
         if name == "align":  # peg head within the hole's cross-section (before or while inserting)
-            head = first(info["peg_head_pos_at_hole"])
-            radius = float(first(ms_env.box_hole_radii)[0])
-            return bool(abs(head[1]) <= radius and abs(head[2]) <= radius and head[0] >= -0.05)
+            head = info["peg_head_pos_at_hole"].reshape(-1, 3)
+            radius = ms_env.box_hole_radii.reshape(-1)
+            return (head[:, 1].abs() <= radius) & (head[:, 2].abs() <= radius) & (head[:, 0] >= -0.05)
         return super().milestone(name, ms_env, info, success)

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lerobot_obsbench.envs.base_task import Task, first, register_task
+from lerobot_obsbench.envs.base_task import Task, first, register_task, to_numpy
 from lerobot_obsbench.envs.experts import CLOSED, Phase, WaypointExpert, above
 
 
@@ -72,12 +72,15 @@ class PushCubeWide(PushCube):
     def initialize(self, ms_env) -> bool:
         from mani_skill.utils.structs import Pose
 
-        x, y = (ms_env._episode_rng.uniform(-h, h) for h in self.spawn_half_size)
-        cube = first(ms_env.obj.pose.p)
-        goal = first(ms_env.goal_region.pose.p)
+        # one x, then one y, from each env's episode generator (what a single env with that seed draws)
+        xs, ys = (ms_env._batched_episode_rng.uniform(-h, h) for h in self.spawn_half_size)
+        cube = to_numpy(ms_env.obj.pose.p)
+        goal = to_numpy(ms_env.goal_region.pose.p)
         offset = goal - cube  # the target keeps its place relative to the cube
-        ms_env.obj.set_pose(Pose.create_from_pq(p=[[x, y, cube[2]]], q=ms_env.obj.pose.q))
+        ms_env.obj.set_pose(Pose.create_from_pq(p=np.stack([xs, ys, cube[:, 2]], 1), q=ms_env.obj.pose.q))
         ms_env.goal_region.set_pose(
-            Pose.create_from_pq(p=[[x + offset[0], y + offset[1], goal[2]]], q=ms_env.goal_region.pose.q)
+            Pose.create_from_pq(
+                p=np.stack([xs + offset[:, 0], ys + offset[:, 1], goal[:, 2]], 1), q=ms_env.goal_region.pose.q
+            )
         )
         return True
