@@ -163,3 +163,17 @@ def test_the_simulation_backend_follows_device_batch_and_perturbation():
         check_sim_backend("physx_cpu", 2, "cuda")
     with pytest.raises(ValueError, match="num_envs must be a whole number >= 1"):
         check_sim_backend(None, 0, "cuda")
+
+
+@pytest.mark.parametrize("size", [1, 2])
+def test_any_env_method_runs_in_its_slot(size):
+    """`call` + `result` (whole expert episodes for `obsbench demos --workers`): each slot's own env answers."""
+    envs = make_envs(make_toy_env, {"tag": "calls"}, size)
+    try:
+        for slot in range(size):
+            envs.call(slot, "reset", 4 + slot)
+        assert [envs.result(slot)[0]["agent_pos"].tolist() for slot in range(size)] == [[4 + s, 0] for s in range(size)]
+        envs.call(0, "step", np.array([9.0, 0.0]))
+        assert not envs.result(0)[4]["sub_success/named"]  # the action named another seed
+    finally:
+        envs.close()

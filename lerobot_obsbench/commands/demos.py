@@ -35,6 +35,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help=f"first demonstration seed (>= "
         f"{DEMO_SEED_START}; lower seeds are reserved for evaluation and checkpoint selection)",
     )
+    p.add_argument(
+        "--workers",
+        type=positive_int,
+        default=1,
+        help="processes recording episodes side by side, one env each (the same dataset as 1)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -48,6 +54,7 @@ def run(args: argparse.Namespace) -> int:
         cameras=args.cameras,
         seed_start=args.seed_start,
         overwrite=args.overwrite,
+        workers=args.workers,
     )
     print(
         f"{args.out}: {len(info['seeds'])} episodes of {args.task}; expert success rate "

@@ -3,12 +3,20 @@
 Each attempted episode is simulated, and successful ones are staged as one compressed `.npz` file in
 `OUT/.episodes/` (`datasets.staging`: written under a temporary name, then renamed); failed attempts are logged in
 `OUT/.episodes/attempts.jsonl`. A rerun skips every seed already attempted, so a killed run loses at most the
-episode in flight and never repeats one. Once N episodes exist, the LeRobotDataset is (re)assembled from the
+episodes in flight and never repeats one. Once N episodes exist, the LeRobotDataset is (re)assembled from the
 episode files in seed order, then the staging files are removed; a kill during assembly just redoes it.
+
+With `workers` W > 1, W worker processes each hold an env and record whole episodes side by side
+(`envs.vector.SubprocessEnvs`), in waves of the next W seeds, worker k taking the wave's k-th. The dataset holds
+the first N successful seeds, as with one worker, but not always the same frames: ManiSkill's CPU simulation
+carries state from one episode into the next in the same env (the order of its contact pairs, measured in
+docs/simulation.md), so an episode recorded after another seed can drift by a millimetre once contacts begin.
+A given W (and the same resume points) records the same dataset every time.
 """
 
 from __future__ import annotations
 
+import itertools
 import json
 import re
 import shutil
@@ -28,6 +36,7 @@ from lerobot_obsbench.datasets.staging import (
 )
 from lerobot_obsbench.envs.base_task import DEMO_SEED_START, task_spec
 from lerobot_obsbench.envs.maniskill import CONTROL_FPS, ROBOT_TYPE
+from lerobot_obsbench.envs.vector import make_envs
 from lerobot_obsbench.locks import exclusive_output
 from lerobot_obsbench.schema import ACTION_KEY, MIN_IMAGE_SIZE, env_observation_to_frame
 
@@ -55,6 +64,26 @@ def expert_episode(env, spec, seed: int) -> tuple[bool, dict[str, np.ndarray]]:
             break
     stacked = {k: np.stack([f[k] for f in frames]) for k in frames[0]} if frames else {}
     return success, stacked
+
+
+class ExpertRecorder:
+    """An env and the task's expert, recording one whole episode per call (in a worker process, or this one)."""
+
+    def __init__(self, task: str, cameras, image_size: int):
+        from lerobot_obsbench.envs.maniskill import ObsBenchEnv
+
+        self.spec = task_spec(task)
+        self.env = ObsBenchEnv(task, cameras=cameras, image_size=image_size)
+
+    def episode(self, seed: int) -> tuple[bool, dict[str, np.ndarray]]:
+        return expert_episode(self.env, self.spec, seed)
+
+    def close(self) -> None:
+        self.env.close()
+
+
+def make_expert_recorder(task: str, cameras, image_size: int) -> ExpertRecorder:
+    return ExpertRecorder(task, cameras, image_size)
 
 
 def _attempted(staging: Path) -> dict[int, bool]:
@@ -91,11 +120,13 @@ def record_demos(
     repo_id: str | None = None,
     keep_staging: bool = False,
     overwrite: bool = False,
+    workers: int = 1,
 ) -> dict:
     """Record `episodes` successful expert demonstrations of `task` into `out` (resumable; one recorder per
     `out`: a second one is refused with `OutputLockedError`). What `out` already holds is kept: the same
     recording (finished: returned; interrupted: resumed), anything else refused before the simulator starts,
-    unless `overwrite` (then it is deleted first)."""
+    unless `overwrite` (then it is deleted first). `workers` processes record episodes side by side (module
+    docstring)."""
     spec = task_spec(task)  # unknown task -> TaskError listing the valid ones
     if spec.expert is None:
         spec.make_expert(None)  # raises the explanatory NotImplementedError
@@ -103,6 +134,8 @@ def record_demos(
         raise ValueError(f"demonstration seeds must start at >= {DEMO_SEED_START} (below are evaluation seeds)")
     if episodes < 1:
         raise ValueError(f"--episodes must be >= 1; got {episodes}")
+    if workers < 1:
+        raise ValueError(f"--workers must be >= 1; got {workers}")
     if image_size < MIN_IMAGE_SIZE:
         raise ValueError(
             f"--image-size must be >= {MIN_IMAGE_SIZE} pixels (LeRobot's video encoder fails below); got {image_size}"
@@ -119,13 +152,13 @@ def record_demos(
             overwrite,
         )
         return _record_locked(
-            spec, episodes, Path(out), image_size, cameras, seed_start, max_attempts, repo_id, keep_staging
+            spec, episodes, Path(out), image_size, cameras, seed_start, max_attempts, repo_id, keep_staging, workers
         )
 
 
-def _record_locked(spec, episodes, out, image_size, cameras, seed_start, max_attempts, repo_id, keep_staging) -> dict:
-    from lerobot_obsbench.envs.maniskill import ObsBenchEnv
-
+def _record_locked(
+    spec, episodes, out, image_size, cameras, seed_start, max_attempts, repo_id, keep_staging, workers
+) -> dict:
     task = spec.name
     sidecar = out / SIDECAR
     if sidecar.is_file() and (out / "meta" / "info.json").is_file():  # the same recording (prepare_dataset_out)
@@ -135,35 +168,37 @@ def _record_locked(spec, episodes, out, image_size, cameras, seed_start, max_att
     staging.mkdir(parents=True, exist_ok=True)
     attempted = _attempted(staging)
     successes = sorted(s for s, ok in attempted.items() if ok)
-    env = ObsBenchEnv(task, cameras=cameras, image_size=image_size)
     max_attempts = max_attempts or 10 * episodes + 10
-    seed = seed_start
+    pending = (s for s in range(seed_start, seed_start + max_attempts) if s not in attempted)
+    recorder_kwargs = dict(task=task, cameras=list(cameras), image_size=image_size)
     start = time.time()
     bar = tqdm(total=episodes, initial=min(len(successes), episodes), desc=f"{task} demos", unit="ep")
+    recorders = make_envs(make_expert_recorder, recorder_kwargs, workers)
     try:
         while len(successes) < episodes:
-            if seed - seed_start >= max_attempts:
-                raise RuntimeError(f"only {len(successes)}/{episodes} successes after {max_attempts} attempts")
-            if seed in attempted:
-                seed += 1
-                continue
-            ok, frames = expert_episode(env, spec, seed)
-            if ok:
-                save_episode_file(staging / f"seed_{seed}.npz", frames)
-                successes.append(seed)
-                bar.update(1)
-            with open(staging / ATTEMPTS_LOG, "a") as log:
-                log.write(json.dumps({"seed": seed, "success": ok, "steps": len(frames.get("action", []))}) + "\n")
-            attempted[seed] = ok
-            tried = len(attempted)
-            bar.set_postfix(
-                success=f"{len([s for s in attempted.values() if s])}/{tried}",
-                ep_per_min=f"{60 * bar.n / max(time.time() - start, 1e-6):.1f}",
-            )
-            seed += 1
+            wave = list(itertools.islice(pending, workers))  # worker k records the wave's k-th seed
+            if not wave:
+                break
+            for worker, seed in enumerate(wave):
+                recorders.call(worker, "episode", seed)
+            for worker, seed in enumerate(wave):
+                ok, frames = recorders.result(worker)
+                if ok:
+                    save_episode_file(staging / f"seed_{seed}.npz", frames)
+                    successes.append(seed)
+                    bar.update(int(bar.n < episodes))  # the wave's later episodes finish too
+                with open(staging / ATTEMPTS_LOG, "a") as log:
+                    log.write(json.dumps({"seed": seed, "success": ok, "steps": len(frames.get("action", []))}) + "\n")
+                attempted[seed] = ok
+                bar.set_postfix(
+                    success=f"{len([s for s in attempted.values() if s])}/{len(attempted)}",
+                    ep_per_min=f"{60 * bar.n / max(time.time() - start, 1e-6):.1f}",
+                )
     finally:
         bar.close()
-        env.close()
+        recorders.close()
+    if len(successes) < episodes:
+        raise RuntimeError(f"only {len(successes)}/{episodes} successes after {max_attempts} attempts")
     seeds = sorted(successes)[:episodes]
     assemble(
         out,
@@ -173,11 +208,11 @@ def _record_locked(spec, episodes, out, image_size, cameras, seed_start, max_att
         fps=CONTROL_FPS,
         robot_type=ROBOT_TYPE,
     )
-    tried = len(attempted)
+    tried = sum(s <= seeds[-1] for s in attempted)  # what one worker attempts (more workers try a few more)
     info = {
         "task": task,
         "seeds": seeds,
-        "expert_success_rate": round(len(successes) / tried, 4),
+        "expert_success_rate": round(episodes / tried, 4),
         "attempts": tried,
         "image_size": image_size,
         "cameras": list(cameras),

@@ -12,6 +12,9 @@ info); `render(slots)` their viewer images.
 - `BatchedEnvs`: one env object that simulates all slots in one process (`num_envs`: ManiSkill's GPU
   simulation and rendering), whose observations stay tensors on its device, from the renderer to the policy.
 
+`SubprocessEnvs` and `InProcessEnvs` also run any other method of their envs: `call(slot, method, *args)` starts
+it and `result(slot)` waits for what it returned (`obsbench demos --workers` records whole expert episodes so).
+
 Workers are started with `forkserver` (as LeRobot's own async vector envs are): a fork of a process holding
 torch's threads or a Vulkan device is not safe. Each worker runs torch on one thread; an error in a worker is
 raised again in the parent with the worker's message.
@@ -42,8 +45,8 @@ class EnvWorkerError(ObsBenchError, RuntimeError):
 
 
 def _worker(connection, make_env: Callable, env_kwargs: dict) -> None:
-    """One env in its own process: answers ("reset", seed), ("step", action), ("render", None), ("close", None)
-    with ("ok", result), or ("raise", the exception, its traceback) and stops."""
+    """One env in its own process: answers each (method, args, kwargs) with ("ok", env.method(*args, **kwargs)),
+    or ("raise", the exception, its traceback) and stops; ("close", ...) ends it."""
     import pickle
 
     import torch
@@ -54,16 +57,10 @@ def _worker(connection, make_env: Callable, env_kwargs: dict) -> None:
         env = make_env(**env_kwargs)
         connection.send(("ok", None))
         while True:
-            command, argument = connection.recv()
-            if command == "close":
+            method, args, kwargs = connection.recv()
+            if method == "close":
                 break
-            if command == "reset":
-                result = env.reset(seed=argument)
-            elif command == "step":
-                result = env.step(argument)
-            else:
-                result = env.render()
-            connection.send(("ok", result))
+            connection.send(("ok", getattr(env, method)(*args, **kwargs)))
     except (KeyboardInterrupt, EOFError):  # the parent was interrupted or went away
         pass
     except Exception as err:  # raised again in the parent: the same error as in one process, with this traceback
@@ -112,6 +109,14 @@ class InProcessEnvs:
     def render(self, slots: Sequence[int]) -> list[np.ndarray]:
         return [self.env.render() for _ in slots]
 
+    def call(self, slot: int, method: str, *args) -> None:
+        """Run `env.method(*args)` now (there is no other process to run it in); `result(slot)` gives what it
+        returned."""
+        self._result = getattr(self.env, method)(*args)
+
+    def result(self, slot: int):
+        return self._result
+
     def close(self) -> None:
         self.env.close()
 
@@ -155,17 +160,25 @@ class SubprocessEnvs:
             results.append(result)
         return results
 
+    def call(self, slot: int, method: str, *args, **kwargs) -> None:
+        """Start `env.method(*args, **kwargs)` in slot's worker, without waiting for it."""
+        self.connections[slot].send((method, args, kwargs))
+
+    def result(self, slot: int):
+        """What slot's finished call returned (its error, raised here)."""
+        return self._collect([slot])[0]
+
     def reset(self, seeds: Sequence[int]) -> dict:
         """Reset slots 0..len(seeds)-1 with `seeds`, all at once."""
         for slot, seed in enumerate(seeds):
-            self.connections[slot].send(("reset", int(seed)))
+            self.call(slot, "reset", seed=int(seed))
         self.observations = [obs for obs, _ in self._collect(range(len(seeds)))]
         return stacked(self.observations)
 
     def step(self, slots: Sequence[int], actions) -> tuple[dict, list[tuple]]:
         """Step `slots` with their rows of `actions`, all at once."""
         for slot, action in zip(slots, _action_rows(actions, slots), strict=True):
-            self.connections[slot].send(("step", action))
+            self.call(slot, "step", action)
         results = self._collect(slots)
         for slot, (obs, *_) in zip(slots, results, strict=True):
             self.observations[slot] = obs
@@ -173,14 +186,14 @@ class SubprocessEnvs:
 
     def render(self, slots: Sequence[int]) -> list[np.ndarray]:
         for slot in slots:
-            self.connections[slot].send(("render", None))
+            self.call(slot, "render")
         return self._collect(slots)
 
     def close(self) -> None:
         for connection, process in zip(self.connections, self.processes, strict=False):
             if process.is_alive():
                 try:
-                    connection.send(("close", None))
+                    connection.send(("close", (), {}))
                 except (BrokenPipeError, OSError):
                     pass
         for connection in self.connections:
