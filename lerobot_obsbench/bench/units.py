@@ -365,7 +365,7 @@ def eval_unit(
         "method": run.method,
         "checkpoint_step": checkpoint_step,
         "device": device,
-        **({"batch_size": result["batch_size"]} if "batch_size" in result else {}),
+        **{k: result[k] for k in ("batch_size", "sim_backend") if k in result},  # (RLBench has neither)
         **{k: result[k] for k in keys},
         "finished_at": now(),
     }

@@ -13,6 +13,11 @@ few keys), with the schema's extra sensors riding in the `robot_state` passthrou
 `schema_frame(obs)` gives the same data keyed by dataset schema keys (used to record demonstrations), so a
 policy trained on recorded demos runs unchanged on the env. Every step's info has `is_success` and the task's
 sub-success milestones (achieved at any step so far).
+
+One `ObsBenchEnv` can hold `num_envs` envs, in ManiSkill's GPU simulation (`sim_backend="physx_cuda"`):
+`reset_all(seeds)`, `step_all(actions)` and `render_all()` take and give batches of tensors on its device (what
+lockstep evaluation on a GPU feeds the policy). The gym API above is the same code at one env, its first row
+turned into NumPy arrays.
 """
 
 from __future__ import annotations
