@@ -134,6 +134,12 @@ def test_small_probes_get_one_line_answers(tmp_path, capsys):
         "obsbench eval: error: perturbation 'light:nan': expected light:I (e.g. light:0.03), with finite numbers"
     )
 
+    args = ["eval", "--policy.path", str(missing), "--env.task", "PushCube-v1", "--eval.sim_backend", "physx_cuda"]
+    assert main(args) == 2  # before the checkpoint, too
+    assert capsys.readouterr().err.strip() == (
+        "obsbench eval: error: --eval.sim_backend=physx_cuda (ManiSkill's GPU simulation) needs --policy.device=cuda"
+    )
+
     assert main(["report", str(tmp_path / "results.jsonl")]) == 2
     assert capsys.readouterr().err.strip() == (
         f"obsbench report: error: results file {tmp_path / 'results.jsonl'} not found (`obsbench run` writes "

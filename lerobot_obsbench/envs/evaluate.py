@@ -44,6 +44,7 @@ from lerobot_obsbench.envs.maniskill import (
     make_obsbench_env,
 )
 from lerobot_obsbench.envs.vector import make_envs
+from lerobot_obsbench.errors import UsageError
 from lerobot_obsbench.outputs import write_json_atomic, write_text_atomic
 from lerobot_obsbench.policies.loading import load_policy
 from lerobot_obsbench.schema import check_compatibility
@@ -81,9 +82,9 @@ def choose_sim_backend(sim_backend: str, device: str, batch_size: int, perturbat
     """`auto`: ManiSkill's GPU simulation for lockstep (N > 1) on a CUDA device, unless the perturbation ray-traces
     (which ManiSkill renders for one env per process); else its CPU simulation, one env per worker process."""
     if sim_backend not in ("auto", *SIM_BACKENDS):
-        raise ValueError(f"--eval.sim_backend must be auto or one of {', '.join(SIM_BACKENDS)}; got {sim_backend!r}")
+        raise UsageError(f"--eval.sim_backend must be auto or one of {', '.join(SIM_BACKENDS)}; got {sim_backend!r}")
     if sim_backend == "physx_cuda" and not device.startswith("cuda"):
-        raise ValueError("--eval.sim_backend=physx_cuda (ManiSkill's GPU simulation) needs --policy.device=cuda")
+        raise UsageError("--eval.sim_backend=physx_cuda (ManiSkill's GPU simulation) needs --policy.device=cuda")
     if sim_backend != "auto":
         return sim_backend
     on_gpu = device.startswith("cuda") and batch_size > 1 and not str(perturbation).startswith("noise")

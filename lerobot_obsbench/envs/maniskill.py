@@ -29,7 +29,7 @@ import numpy as np
 
 from lerobot_obsbench.envs.base_task import TaskError, asset_help, missing_assets, task_spec, to_numpy
 from lerobot_obsbench.envs.perturbations import apply_scene_perturbation, camera_overrides, parse_perturbation
-from lerobot_obsbench.errors import ObsBenchError
+from lerobot_obsbench.errors import ObsBenchError, UsageError
 from lerobot_obsbench.schema import (
     ENV_STATE_KEY,
     MIN_IMAGE_SIZE,
@@ -118,17 +118,17 @@ def check_sim_backend(sim_backend: str | None, num_envs: int, render_device: str
     """ManiSkill's simulation for `num_envs` envs in one process: its CPU simulation holds one env per process,
     its GPU simulation (physx_cuda) many, and needs a CUDA device. None: the one that can hold them."""
     if not isinstance(num_envs, int) or isinstance(num_envs, bool) or num_envs < 1:
-        raise ValueError(f"num_envs must be a whole number >= 1; got {num_envs!r}")
+        raise UsageError(f"num_envs must be a whole number >= 1; got {num_envs!r}")
     sim_backend = sim_backend or ("physx_cuda" if num_envs > 1 else "physx_cpu")
     if sim_backend not in SIM_BACKENDS:
-        raise ValueError(f"sim_backend must be one of {SIM_BACKENDS}; got {sim_backend!r}")
+        raise UsageError(f"sim_backend must be one of {SIM_BACKENDS}; got {sim_backend!r}")
     if sim_backend == "physx_cuda" and render_device == "cpu":
-        raise ValueError(
+        raise UsageError(
             "ManiSkill's GPU simulation (physx_cuda) needs a CUDA device (device='cuda'). On a CPU, envs run in "
             "lockstep one per worker process instead (obsbench eval --eval.batch_size N)."
         )
     if sim_backend == "physx_cpu" and num_envs > 1:
-        raise ValueError(f"ManiSkill's CPU simulation holds one env per process; got num_envs={num_envs}")
+        raise UsageError(f"ManiSkill's CPU simulation holds one env per process; got num_envs={num_envs}")
     return sim_backend
 
 
@@ -171,7 +171,7 @@ class ObsBenchEnv(gym.Env):
         self._next_seed = seed
         self.perturbation = parse_perturbation(perturbation)
         if num_envs > 1 and self.perturbation and self.perturbation.kind == "noise":
-            raise ValueError(
+            raise UsageError(
                 f"{self.perturbation.name} renders with ray tracing, which ManiSkill runs for one env per process "
                 "only: evaluate it with num_envs=1 (lockstep on CPU workers: --policy.device=cpu)."
             )
