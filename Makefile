@@ -50,6 +50,7 @@ bench: $(STAMP)
 	$(BIN)/python -m benchmarks.bench_train_step
 	$(BIN)/python -m benchmarks.bench_env
 	$(BIN)/python -m benchmarks.bench_eval
+	$(BIN)/python -m benchmarks.bench_demos
 	$(BIN)/python -m benchmarks.bench_encoders
 	$(BIN)/python -m benchmarks.bench_recording
 	$(BIN)/python -m benchmarks.bench_latency
