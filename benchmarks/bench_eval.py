@@ -26,9 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import ROOT, write
-from lerobot_obsbench.envs.evaluate import choose_sim_backend, evaluate
-from lerobot_obsbench.envs.maniskill import make_obsbench_env
-from lerobot_obsbench.envs.vector import make_envs
+from lerobot_obsbench.envs.evaluate import choose_sim_backend, evaluate, make_eval_envs
 
 
 def quick_checkpoint(obs_space: str) -> Path | None:
@@ -77,10 +75,7 @@ def with_policy(checkpoint: Path, args) -> list[dict]:
 def env_steps_per_second(env_kwargs: dict, size: int, steps: int, sim_backend: str) -> dict:
     sim = choose_sim_backend(sim_backend, env_kwargs["device"], size, None)
     start = time.perf_counter()
-    if sim == "physx_cuda":
-        envs = make_envs(make_obsbench_env, {**env_kwargs, "sim_backend": sim}, size, batched=True)
-    else:
-        envs = make_envs(make_obsbench_env, env_kwargs, size)
+    envs = make_eval_envs(env_kwargs, size, sim)
     started = time.perf_counter() - start
     try:
         envs.reset(list(range(size)))

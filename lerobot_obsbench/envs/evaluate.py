@@ -12,8 +12,9 @@ wave start together, so LeRobot's own action and observation queues serve every 
 until the wave ends. A policy that samples (Diffusion Policy) draws each slot's noise from a generator seeded
 with that slot's episode seed, the stream `torch.manual_seed(seed)` gives one episode at a time. Seed for seed,
 lockstep therefore computes what sequential evaluation computes; only the batched matrix products round
-differently (1e-7 to 1e-6 in the networks' outputs on CPU), which can at most flip an episode that sits on a knife
-edge.
+differently (1e-7 to 1e-6 in the networks' outputs on CPU), and ManiSkill's CPU simulation carries contact state
+from one episode into the next in the same env (slot k runs seeds k, k + N, ...): either can flip only an episode
+that sits on a knife edge (measured in docs/simulation.md).
 
 On a CUDA device, lockstep defaults to ManiSkill's GPU simulation (`sim_backend` physx_cuda): the wave's N envs
 simulate and render in one process and their observations stay on the GPU up to the policy. Its results are not
@@ -91,6 +92,13 @@ def choose_sim_backend(sim_backend: str, device: str, batch_size: int, perturbat
     return "physx_cuda" if on_gpu else "physx_cpu"
 
 
+def make_eval_envs(env_kwargs: dict, size: int, sim_backend: str):
+    """`size` ObsBench envs (`make_obsbench_env(**env_kwargs)`) for lockstep on `sim_backend`: worker processes
+    on ManiSkill's CPU simulation, or one batched env object on its GPU simulation."""
+    kwargs = {**env_kwargs, "sim_backend": sim_backend}
+    return make_envs(make_obsbench_env, kwargs, size, batched=sim_backend == "physx_cuda")
+
+
 def _episode_noise(policy, generators: list[torch.Generator]):
     """Within: a policy that samples draws row i's noise from `generators[i]` (a policy that does not sample has
     no such hook and needs none)."""
@@ -145,9 +153,7 @@ def evaluate(
     label = f"eval {task}" + (f" [{perturbation}]" if perturbation not in (None, "none") else "")
     bar = tqdm(total=len(seeds), desc=label, unit="ep", disable=not progress)
     records = {}
-    if sim == "physx_cuda":
-        env_kwargs["sim_backend"] = sim
-    envs = make_envs(make_obsbench_env, env_kwargs, slots, batched=sim == "physx_cuda")
+    envs = make_eval_envs(env_kwargs, slots, sim)
     try:
         for first in range(0, len(seeds), slots):
             wave = seeds[first : first + slots]

@@ -28,6 +28,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from lerobot_obsbench.envs.base_task import to_numpy
 from lerobot_obsbench.errors import ObsBenchError
 
 # Episodes advanced together by default, per device kind: cpu measured by benchmarks/bench_eval.py (the N with
@@ -85,7 +86,7 @@ def stacked(observations: list):
 
 
 def _action_rows(actions, slots: Sequence[int]) -> list[np.ndarray]:
-    rows = actions.detach().cpu().numpy() if hasattr(actions, "detach") else np.asarray(actions)
+    rows = to_numpy(actions)
     return [rows[slot] for slot in slots]
 
 
@@ -109,10 +110,10 @@ class InProcessEnvs:
     def render(self, slots: Sequence[int]) -> list[np.ndarray]:
         return [self.env.render() for _ in slots]
 
-    def call(self, slot: int, method: str, *args) -> None:
-        """Run `env.method(*args)` now (there is no other process to run it in); `result(slot)` gives what it
-        returned."""
-        self._result = getattr(self.env, method)(*args)
+    def call(self, slot: int, method: str, *args, **kwargs) -> None:
+        """Run `env.method(*args, **kwargs)` now (there is no other process to run it in); `result(slot)` gives
+        what it returned."""
+        self._result = getattr(self.env, method)(*args, **kwargs)
 
     def result(self, slot: int):
         return self._result
@@ -246,8 +247,7 @@ class BatchedEnvs:
         return _first_rows(observations, self.rows), outcomes
 
     def render(self, slots: Sequence[int]) -> list[np.ndarray]:
-        images = self.env.render_all()
-        images = images.detach().cpu().numpy() if hasattr(images, "detach") else np.asarray(images)
+        images = to_numpy(self.env.render_all())
         return [images[slot] for slot in slots]
 
     def close(self) -> None:
