@@ -78,7 +78,7 @@ def env_steps_per_second(env_kwargs: dict, size: int, steps: int, sim_backend: s
     envs = make_eval_envs(env_kwargs, size, sim)
     started = time.perf_counter() - start
     try:
-        envs.reset(list(range(size)))
+        depth = envs.reset(list(range(size)))["robot_state"][f"depth.{env_kwargs['cameras'][0]}"]
         rng = np.random.default_rng(0)
         slots = list(range(size))
         begin = time.perf_counter()
@@ -87,7 +87,13 @@ def env_steps_per_second(env_kwargs: dict, size: int, steps: int, sim_backend: s
         rate = size * steps / (time.perf_counter() - begin)
     finally:
         envs.close()
-    return {"batch_size": size, "sim_backend": sim, "env_steps_per_s": round(rate, 1), "start_s": round(started, 1)}
+    return {
+        "batch_size": size,
+        "sim_backend": sim,
+        "env_steps_per_s": round(rate, 1),
+        "start_s": round(started, 1),
+        "depth": f"{depth.dtype} on {getattr(depth, 'device', 'host')}",  # what the policy's observation holds
+    }
 
 
 def main() -> None:

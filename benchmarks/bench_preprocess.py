@@ -132,17 +132,10 @@ def fps_paths(batch: dict, n_seeds: int = 2048) -> dict:
     return out
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser()
-    parser.add_argument("--batch", type=int, default=32)
-    parser.add_argument("--size", type=int, default=128)
-    parser.add_argument("--device", default="cpu")
-    parser.add_argument("--reference-frames", type=int, default=4)
-    parser.add_argument("--out", type=Path)
-    args = parser.parse_args()
-    synthetic = load_synthetic()
-    frames = cluttered_frames(synthetic, args.batch, args.size)
-    device = torch.device(args.device)
+def measure(device: torch.device, batch_size: int, size: int, reference_frames: int) -> dict:
+    """The plugin's pipeline on `batch_size` cluttered `size`² frames on `device`, the NumPy reference on the first
+    `reference_frames` of them and NumPy + fpsample + scipy on all, and FPS alone (`fps_paths`)."""
+    frames = cluttered_frames(load_synthetic(), batch_size, size)
     batch = sensor_batch(frames, device)
     adapter = ObservationAdapter("pointcloud", [CAM], workspace=WORKSPACE, voxel_size=0.005).eval().to(device)
 
@@ -158,7 +151,7 @@ def main() -> None:
     ref_points = []
 
     def run_reference():
-        for i in range(args.reference_frames):
+        for i in range(reference_frames):
             ref_points.append(
                 numpy_reference(frames["rgb"][i], frames["depth"][i], frames["K"], frames["cam2world"])[2]
             )
@@ -167,18 +160,18 @@ def main() -> None:
     fps = fps_paths(batch)
 
     def run_libraries():
-        for i in range(args.batch):
+        for i in range(batch_size):
             numpy_reference(frames["rgb"][i], frames["depth"][i], frames["K"], frames["cam2world"], libraries=True)
 
     libraries = timed(run_libraries, repeats=3)
-    plugin_ms = plugin["median_ms"] / args.batch
-    reference_ms = reference["median_ms"] / args.reference_frames
-    libraries_ms = libraries["median_ms"] / args.batch
+    plugin_ms = plugin["median_ms"] / batch_size
+    reference_ms = reference["median_ms"] / reference_frames
+    libraries_ms = libraries["median_ms"] / batch_size
     assert ref_points[0] == int(points_per_frame[0]), "both pipelines must keep the same voxels"
     result = {
-        "image_size": args.size,
-        "batch": args.batch,
-        "device": args.device,
+        "image_size": size,
+        "batch": batch_size,
+        "device": str(device),
         "voxel_size": 0.005,
         "fps_seeds": 2048,
         "knn": 16,
@@ -194,10 +187,22 @@ def main() -> None:
         "fps_2048_per_batch": fps,
     }
     print(
-        f"{args.size}² frames, ~{result['points_after_voxel_mean']:.0f} voxels each: plugin {plugin_ms:.2f} ms/frame "
-        f"(batch {args.batch}, {args.device}) vs NumPy reference {reference_ms:.1f} ms/frame -> {result['speedup']}x; "
+        f"{size}² frames, ~{result['points_after_voxel_mean']:.0f} voxels each: plugin {plugin_ms:.2f} ms/frame "
+        f"(batch {batch_size}, {device}) vs NumPy reference {reference_ms:.1f} ms/frame -> {result['speedup']}x; "
         f"NumPy + fpsample + scipy {libraries_ms:.2f} ms/frame"
     )
+    return result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--batch", type=int, default=32)
+    parser.add_argument("--size", type=int, default=128)
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--reference-frames", type=int, default=4)
+    parser.add_argument("--out", type=Path)
+    args = parser.parse_args()
+    result = measure(torch.device(args.device), args.batch, args.size, args.reference_frames)
     write(f"preprocess_{args.device}", result, args.out)
 
 

@@ -27,6 +27,7 @@ pytestmark = pytest.mark.slow
 BIN = Path(sys.executable).parent
 ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "HF_DATASETS_OFFLINE": "1"}
 SIZE = 64
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
@@ -379,6 +380,45 @@ def test_lockstep_evaluation_gives_each_seed_its_sequential_result(
     rewards = [[r["reward_sum"] for r in result["per_episode"]] for result in (sequential, lockstep)]
     np.testing.assert_allclose(rewards[1], rewards[0], atol=1e-3)
     assert len(set(rewards[0])) == 4  # the seeds' episodes differ, so the comparison can tell them apart
+
+
+def test_the_device_check_runs_end_to_end_on_cpu_at_tiny_sizes(checkpoint, tmp_path):
+    """benchmarks/device_check.py as the GPU machine runs it, tiny and on the CPU: every stage that can run here
+    runs and records what the GPU run reports, so what breaks there is the GPU, not the script."""
+    from benchmarks.device_check import STAGES
+
+    check = [sys.executable, "-m", "benchmarks.device_check", "--device", "cpu", "--tiny", "--task", "PickCube-v1"]
+    done = subprocess.run(
+        [*check, "--checkpoint", str(checkpoint), "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        env={**ENV, "PYTHONPATH": str(ROOT)},
+        cwd=ROOT,
+        stdin=subprocess.DEVNULL,
+        timeout=1500,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    stages = json.loads((tmp_path / "device_check.json").read_text())["stages"]
+    assert {name: stage["ok"] for name, stage in stages.items()} == dict.fromkeys(stages, True), done.stdout[-3000:]
+    assert list(stages) == list(STAGES)
+    assert stages["machine"]["versions"]["lerobot"] == "0.6.1" and stages["machine"]["cuda"] is None
+    assert stages["gpu_simulation"]["ran"] is False and "CUDA" in stages["gpu_simulation"]["why"]
+    tensors = stages["device_tensors"]
+    assert tensors["cpu"]["schema_depth"] == "torch.uint16 on cpu" and tensors["max_abs_action_difference"] == 0.0
+    success = stages["success"]["physx_cpu"]
+    assert success["episodes"] == 2 and len(success["per_seed"]) == 2 and success["batch_size"] == 2
+    assert success["env_steps"] == sum(success["lengths"]) > 0
+    rows = stages["cpu_simulation"]["rows"]
+    assert [(r["batch_size"], r["image_size"]) for r in rows] == [(1, 64), (2, 64)]
+    assert all(r["env_steps_per_s"] > 0 and r["depth"] == "uint16 on cpu" for r in rows)
+    train = stages["train_step"]
+    assert {r["obs_space"] for r in train["rows"] if r["policy"] == "obs_act"} >= {"rgb", "pointcloud", "rgbd"}
+    assert {(r["obs_space"], r["encoder"]) for r in train["quick_grid"]} == {
+        ("none", "blind"), ("state", "oracle"), ("rgb", "spatial_softmax"), ("pointcloud", "dp3")
+    }  # fmt: skip
+    assert all(r["steps_per_s"] > 0 and r["batch"] == 16 for r in train["quick_grid"])
+    assert stages["preprocess"]["plugin_ms_per_frame"] > 0
+    assert "== preprocess" in (tmp_path / "device_check.log").read_text()
 
 
 def test_the_gpu_simulations_batched_path_runs_on_cpu_at_one_env_and_matches_the_gym_path(checkpoint):
