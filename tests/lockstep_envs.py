@@ -4,6 +4,8 @@ up with another, stepped after its end or fed another episode's observation show
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import torch
 
@@ -12,8 +14,12 @@ class ToyEnv:
     """Episode of seed s: a success at step s % 4 + 2 if every action named the seed, else it runs on. Reward of a
     step: the action's second value (the step the policy saw). Seed 13 cannot be reset (a worker's error)."""
 
-    def __init__(self, tag: str = "toy"):
-        self.tag, self.seed, self.t, self.done = tag, None, 0, True
+    def __init__(self, tag: str = "toy", device: str | None = None):
+        self.tag, self.device, self.seed, self.t, self.done = tag, device, None, 0, True
+
+    def process(self) -> tuple[int, int]:
+        """The process holding this env, and its parent: which start method made a worker shows there."""
+        return os.getpid(), os.getppid()
 
     def _obs(self) -> dict:
         return {"agent_pos": np.array([self.seed, self.t], dtype=np.float32)}
@@ -40,8 +46,8 @@ class ToyEnv:
         pass
 
 
-def make_toy_env(tag: str = "toy") -> ToyEnv:
-    return ToyEnv(tag)
+def make_toy_env(tag: str = "toy", device: str | None = None) -> ToyEnv:
+    return ToyEnv(tag, device)
 
 
 class EchoPolicy:

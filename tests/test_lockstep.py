@@ -5,6 +5,8 @@ of Diffusion Policy on a real policy; the ManiSkill runs, sequential against loc
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 import torch
@@ -51,6 +53,21 @@ def test_a_wave_in_worker_processes_gives_each_episode_what_it_gets_alone():
     assert [together[s]["reward_sum"] for s in seeds] == [3.0, 6.0, 6.0]
     # one batched call per step of the wave (finished slots are not stepped again: the toy env would raise)
     assert policy.batch_sizes == [3, 3, 3, 3] and policy.resets == 1
+
+
+@pytest.mark.parametrize("device, spawned", [("cpu", False), ("cuda", True)])
+def test_workers_of_envs_that_render_on_a_gpu_are_spawned(device, spawned):
+    """CUDA cannot start in a process forked from one where it started (on the GPU machine, the fork server's): envs
+    on a CUDA device get fresh interpreters, children of this process; CPU envs come from the fork server."""
+    envs = SubprocessEnvs(make_toy_env, {"device": device}, size=2)
+    try:
+        for slot in range(2):
+            envs.call(slot, "process")
+        processes = [envs.result(slot) for slot in range(2)]
+    finally:
+        envs.close()
+    assert len({pid for pid, _ in processes}) == 2
+    assert all((parent == os.getpid()) == spawned for _, parent in processes)
 
 
 def test_a_worker_error_is_raised_in_the_parent_as_itself_with_the_workers_traceback():
@@ -163,6 +180,27 @@ def test_the_simulation_backend_follows_device_batch_and_perturbation():
         check_sim_backend("physx_cpu", 2, "cuda")
     with pytest.raises(ValueError, match="num_envs must be a whole number >= 1"):
         check_sim_backend(None, 0, "cuda")
+
+
+def test_a_gpu_simulation_without_sapiens_gpu_physx_library_says_how_to_get_it(monkeypatch, tmp_path):
+    """On the lent H200 (offline) SAPIEN's first GPU simulation tried to download its GPU PhysX library from GitHub
+    and failed name resolution (benchmarks/results/device_check_cuda.json): the env says what is missing and what
+    to do, not requests' traceback."""
+    import gymnasium
+    import requests
+
+    from lerobot_obsbench.envs import maniskill
+
+    def offline(*args, **kwargs):
+        raise requests.exceptions.ConnectionError("Failed to resolve 'github.com'")
+
+    monkeypatch.setenv("HOME", str(tmp_path))  # where SAPIEN keeps the library: none there
+    monkeypatch.setattr(gymnasium, "make", offline)
+    with pytest.raises(maniskill.GpuSimulationError) as raised:
+        maniskill.ObsBenchEnv("PushCubeWide-v1", image_size=32, device="cuda", num_envs=2, sim_backend="physx_cuda")
+    message = str(raised.value)
+    assert str(tmp_path / ".sapien" / "physx") in message and "Failed to resolve 'github.com'" in message
+    assert "--eval.sim_backend=physx_cpu" in message and "scripts/device_bundle.py" in message
 
 
 @pytest.mark.parametrize("size", [1, 2])

@@ -59,6 +59,20 @@ class RenderingError(ObsBenchError, RuntimeError):
     """SAPIEN found no usable Vulkan driver."""
 
 
+class GpuSimulationError(ObsBenchError, RuntimeError):
+    """ManiSkill's GPU simulation could not start: SAPIEN has no GPU PhysX library and could not fetch one."""
+
+
+def physx_gpu_library():
+    """Where SAPIEN loads its GPU PhysX library from: it downloads it there from GitHub at the first GPU
+    simulation."""
+    from pathlib import Path
+
+    import sapien.physx
+
+    return Path.home() / ".sapien" / "physx" / sapien.physx.version() / "libPhysXGpu_64.so"
+
+
 RENDERING_HELP = (
     "ManiSkill renders through Vulkan and found no usable driver. On a CPU-only Debian 12 machine install Mesa "
     "25's lavapipe from bookworm-backports: `bash scripts/setup_system.sh` (as root), then check with "
@@ -240,8 +254,16 @@ class ObsBenchEnv(gym.Env):
                 render_backend=self.render_backend,
             )
             obs, _ = self._env.reset(seed=0)
-        except RuntimeError as err:
-            if any(word in str(err).lower() for word in ("vulkan", "vk::", "render")):
+        except Exception as err:
+            if self.sim_backend == "physx_cuda" and not physx_gpu_library().is_file():
+                raise GpuSimulationError(
+                    f"ManiSkill's GPU simulation needs SAPIEN's GPU PhysX library at {physx_gpu_library()}, which "
+                    f"SAPIEN downloads from GitHub at its first GPU simulation; that failed ({type(err).__name__}: "
+                    f"{err}). Run once where GitHub is reachable and copy the file here (the device check's bundle "
+                    "carries it: scripts/device_bundle.py), or evaluate on ManiSkill's CPU simulation: "
+                    "--eval.sim_backend=physx_cpu."
+                ) from err
+            if isinstance(err, RuntimeError) and any(w in str(err).lower() for w in ("vulkan", "vk::", "render")):
                 raise RenderingError(f"{RENDERING_HELP} (SAPIEN: {err})") from err
             raise
         return obs

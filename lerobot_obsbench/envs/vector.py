@@ -16,8 +16,9 @@ info); `render(slots)` their viewer images.
 it and `result(slot)` waits for what it returned (`obsbench demos --workers` records whole expert episodes so).
 
 Workers are started with `forkserver` (as LeRobot's own async vector envs are): a fork of a process holding
-torch's threads or a Vulkan device is not safe. Each worker runs torch on one thread; an error in a worker is
-raised again in the parent with the worker's message.
+torch's threads or a Vulkan device is not safe. Envs that render on a CUDA device get `spawn`, which CUDA needs.
+Each worker runs torch on one thread; an error in a worker is raised again in the parent with the worker's
+message.
 """
 
 from __future__ import annotations
@@ -31,9 +32,9 @@ import numpy as np
 from lerobot_obsbench.envs.base_task import to_numpy
 from lerobot_obsbench.errors import ObsBenchError
 
-# Episodes advanced together by default, per device kind: cpu measured by benchmarks/bench_eval.py (the N with
-# the least total time over its two policies in benchmarks/results/eval_cpu.json, on this 2-core machine: 3, by
-# 10%); cuda not measured (no GPU was available), so one episode at a time there.
+# Episodes advanced together by default, per device kind: the measured N with the least time per episode
+# (docs/performance.md#the-cost-model; on a GPU host, starting one worker process per env costs more than it saves
+# on the grids' evaluations).
 DEFAULT_BATCH_SIZE = {"cpu": 3, "cuda": 1}
 
 
@@ -127,10 +128,15 @@ class SubprocessEnvs:
     one per worker process, addressed by slot."""
 
     def __init__(self, make_env: Callable, env_kwargs: dict, size: int):
-        context = mp.get_context("forkserver")
-        # the fork server imports the env's module (the simulator) once; each worker forked from it then only builds
-        # its env
-        context.set_forkserver_preload([make_env.__module__])
+        if str(env_kwargs.get("device") or "").startswith("cuda"):
+            # envs rendering on a GPU: a fresh interpreter per worker, as CUDA requires (on the GPU machine a worker
+            # forked from the fork server found CUDA initialised there and could not start)
+            context = mp.get_context("spawn")
+        else:
+            context = mp.get_context("forkserver")
+            # the fork server imports the env's module (the simulator) once; each worker forked from it then only
+            # builds its env
+            context.set_forkserver_preload([make_env.__module__])
         self.connections, self.processes = [], []
         try:
             for _ in range(size):
