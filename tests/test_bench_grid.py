@@ -403,3 +403,39 @@ def test_the_evaluation_cost_model_is_the_benchmarks_measurement():
     assert measured["image_size"] == EVAL_RATE_IMAGE_SIZE
     assert EVAL_STEPS_PER_SECOND["cpu"] == {n: round(steps / seconds, 1) for n, (steps, seconds) in totals.items()}
     assert DEFAULT_BATCH_SIZE["cpu"] == min(totals, key=lambda n: totals[n][1])
+
+
+def test_the_gpu_cost_model_is_the_device_checks_measurement():
+    """The dry run's cuda rates and the cuda default batch size are what benchmarks/device_check.py measured on the
+    GPU machine (benchmarks/results/device_check_cuda*.json; SpUNet-34 from the earlier train-step run on the same
+    kind of card): a new device check with other numbers fails here until the constants follow."""
+    from pathlib import Path
+    from statistics import mean
+
+    from lerobot_obsbench.bench.runner import EVAL_STEPS_PER_SECOND, TRAIN_SAMPLES_PER_SECOND
+    from lerobot_obsbench.envs.vector import DEFAULT_BATCH_SIZE
+
+    results = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
+    check, rerun = (json.loads((results / f"device_check_cuda{s}.json").read_text()) for s in ("", "_rerun"))
+    assert "H200" in check["stages"]["machine"]["nvidia_smi"] and rerun["device"] == "cuda"
+    evaluations = [rerun["stages"]["cpu_simulation"]["with_policy_one_env"], rerun["stages"]["success"]["physx_cpu"]]
+    assert EVAL_STEPS_PER_SECOND["cuda"] == {r["batch_size"]: r["env_steps_per_s"] for r in evaluations}
+    fastest = min(evaluations, key=lambda r: r["wall_s"] / r["episodes"])
+    assert DEFAULT_BATCH_SIZE["cuda"] == fastest["batch_size"]
+
+    train = check["stages"]["train_step"]
+    quick = {row["obs_space"]: row["samples_per_s"] for row in train["quick_grid"]}
+    measured = {"image": quick["rgb"], "point": quick["pointcloud"], "none": min(quick["none"], quick["state"])}
+    assert TRAIN_SAMPLES_PER_SECOND[("cuda", "cpu")] == {k: round(v, -1) for k, v in measured.items()}
+    assert TRAIN_SAMPLES_PER_SECOND[("cuda", "tiny")] == TRAIN_SAMPLES_PER_SECOND[("cuda", "cpu")]  # a bound
+    act = [row for row in train["rows"] if row["policy"] == "obs_act" and "@" not in row["encoder"]]
+    images = [row["steps_per_s"] * row["batch"] for row in act if row["obs_space"] != "pointcloud"]
+    earlier = json.loads((results / "train_step_cuda_paper.json").read_text())["rows"]
+    points = [row["steps_per_s"] * row["batch"] for row in act if row["encoder"] == "pointnet"]
+    points += [
+        r["steps_per_s"] * r["batch"] for r in earlier if r["policy"] == "obs_act" and r["encoder"] == "spunet34"
+    ]
+    assert len(images) == 6 and len(points) == 2
+    paper = TRAIN_SAMPLES_PER_SECOND[("cuda", "paper")]
+    assert (paper["image"], paper["point"]) == (round(mean(images), -1), round(mean(points), -1))
+    assert paper["none"] == paper["image"]  # not measured: the image rate bounds the blind policy's time

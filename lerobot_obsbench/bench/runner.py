@@ -36,28 +36,25 @@ from lerobot_obsbench.rlbench.paper_tasks import grid_task_name
 
 DEMO_FRAMES_PER_EPISODE = 30  # for estimates before the demonstrations exist
 
-# Rough throughput for `--dry-run` estimates and the grid's ETA until a run reports its own rate: training samples
-# per second by (device kind, preset) and space kind. cpu / cpu: whole `lerobot-train` runs of the quick grid on
-# this 2-core machine (64² images, data loading included: none 167, rgb 79, pointcloud 51 samples/s). Otherwise
-# from measured model steps (forward, backward, optimizer; data loading not counted): the other cpu presets on
-# this machine (benchmarks/results/train_step_cpu_cpu.json); cuda paper
-# on one H200 (benchmarks/results/train_step_cuda_paper.json: the ACT rates at batch 16, slower than DP's at 64;
-# point = PointNet and SpUNet-34 averaged). Not measured on a GPU: the smaller presets and the blind space, given
-# the paper's image rate (an upper bound on their time).
+# Training samples per second by (device kind, preset) and space kind, for `--dry-run` estimates and a grid's ETA
+# until a run reports its own rate. Which machine measured each figure, and which figures are bounds:
+# docs/performance.md#the-cost-model; tests/test_bench_grid.py holds the measured ones to their benchmark's JSON.
 TRAIN_SAMPLES_PER_SECOND = {
     ("cpu", "tiny"): {"image": 100.0, "point": 100.0, "none": 200.0},
     ("cpu", "cpu"): {"image": 80.0, "point": 50.0, "none": 165.0},
     ("cpu", "paper"): {"image": 2.5, "point": 0.5, "none": 50.0},
-    ("cuda", "tiny"): {"image": 270.0, "point": 270.0, "none": 270.0},
-    ("cuda", "cpu"): {"image": 270.0, "point": 270.0, "none": 270.0},
+    ("cuda", "tiny"): {"image": 1190.0, "point": 960.0, "none": 1450.0},
+    ("cuda", "cpu"): {"image": 1190.0, "point": 960.0, "none": 1450.0},
     ("cuda", "paper"): {"image": 270.0, "point": 100.0, "none": 270.0},
 }
-# Evaluation env steps per second with the policy at 64², by lockstep batch size: cpu measured on this 2-core
-# machine by benchmarks/bench_eval.py (benchmarks/results/eval_cpu.json: the quick grid's DP3 and blind policies,
-# 24 episodes each, env start-up included; a batch size above the measured ones counts as the largest); cuda a
-# guess, not measured (no GPU was available, and ManiSkill was not run on one). Larger frames render slower: 128²
-# halves the rate (benchmarks/results/env.json: 26.4 steps/s at 128² against bench_eval's 57.0 at 64², no policy).
-EVAL_STEPS_PER_SECOND = {"cpu": {1: 23.6, 2: 24.7, 3: 26.1, 4: 24.1}, "cuda": {1: 60.0}}
+# Evaluation env steps per second with the policy at 64², by lockstep batch size, env start-up included (an
+# unmeasured batch size counts as the largest measured one below it); the same page says where each was measured.
+EVAL_STEPS_PER_SECOND = {"cpu": {1: 23.6, 2: 24.7, 3: 26.1, 4: 24.1}, "cuda": {1: 43.3, 16: 32.6}}
+# One line of the dry run: the machines behind the rates.
+RATES_MEASURED_ON = (
+    "rates: cpu measured on a 2-core CPU machine; cuda on one H200 with a 16-core host (model steps; evaluation on "
+    "ManiSkill's CPU simulation rendering on the GPU: its GPU simulation is not measured); docs/performance.md"
+)
 EVAL_RATE_IMAGE_SIZE = 64
 # RLBench steps per second: a guess, not measured (CoppeliaSim does not run here). Each step plans a path to the
 # predicted pose and executes it in CoppeliaSim, which simulates on the CPU whatever the policy's device
@@ -95,7 +92,9 @@ def eval_seconds(spec: EvalSpec, device: str, rlbench: bool = False, batch_size:
         rate = RLBENCH_STEPS_PER_SECOND[device_kind(device)]
     else:
         measured = EVAL_STEPS_PER_SECOND[device_kind(device)]
-        rate = measured[min(batch_size, max(measured))] * min(1.0, EVAL_RATE_IMAGE_SIZE / image_size)
+        rate = measured[max(n for n in measured if n <= batch_size)]
+        if device_kind(device) == "cpu":  # the CPU renderer slows with the frame; the GPU's did not from 64² to 128²
+            rate *= min(1.0, EVAL_RATE_IMAGE_SIZE / image_size)
     return spec.episodes * spec.max_steps * 0.6 / rate + 10
 
 
@@ -209,6 +208,7 @@ def print_plan(grid: Grid, work: Work, out: Path, device: str, echo=print) -> No
         f"  rough cost with one worker: {totals['cpu'] / 3600:.1f} h on a 2-core CPU, {totals['cuda'] / 3600:.1f} h "
         f"on one H200 GPU (planning on {device}; recorded demonstrations not counted)"
     )
+    echo(f"  {RATES_MEASURED_ON}")
     if len(set(grid.seeds)) < 2:
         echo(
             f"  note: one training seed ({grid.seeds[0]}): every comparison rests on it, so its intervals cover "
