@@ -106,7 +106,9 @@ def test_charuco_corner_offset_is_removed_only_where_opencv_has_it():
 def test_detected_corners_are_sub_pixel_exact_on_supersampled_renders():
     """Every detected ChArUco corner against the exact projection of its object point, over camera poses 0.4-0.8 m
     away and 20-50 degrees off the board's normal: no mean offset (an uncorrected +0.5 px, or a correction the
-    installed OpenCV no longer needs, is 10 times the bound) and no corner more than a quarter pixel off."""
+    installed OpenCV no longer needs, is 10 times the bound) and no corner 0.35 px off: the worst corner measures
+    0.243 px here with OpenCV on 1 or 2 threads; the bound leaves room for another CPU's SIMD path and stays below
+    the 0.5 px offset."""
     offsets = []
     for camera in HD_CAMERAS:
         T = look_at_board(*camera)
@@ -117,7 +119,7 @@ def test_detected_corners_are_sub_pixel_exact_on_supersampled_renders():
     offsets = np.concatenate(offsets)
     mean = offsets.mean(axis=0)
     assert np.all(np.abs(mean) < 0.05), f"mean corner offset (du, dv) = {mean} px, OpenCV {cv2.__version__}"
-    assert np.abs(offsets).max() < 0.25, np.abs(offsets).max()
+    assert np.abs(offsets).max() < 0.35, np.abs(offsets).max()
 
 
 def test_world_origin_is_charuco_corner_0_x_along_the_5_square_side_z_up():

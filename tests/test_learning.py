@@ -3,9 +3,24 @@
 Synthetic task: move the gripper above a red cube placed at random. The goal (environment_state) is withheld, so
 the cube position is only visible in the point cloud; joint values in the state are noise. Evaluated on
 held-out episodes, with a control that shuffles the point clouds across the batch.
+
+Training lands elsewhere on another CPU's float path, so the test asserts means over three training seeds, with
+bounds set outside the spread measured here (2026-11-26, `train_and_measure` for seeds 0-4, torch on 1 and on 2
+threads: two float paths of one machine). Ratios, single runs (min-max) and means of any three seeds:
+
+| ratio | single runs | means of 3 seeds | bound |
+|---|---|---|---|
+| training L1 / mean action's | 0.38-0.47 | 0.39-0.44 | < 0.55 |
+| held-out L1 / mean action's | 0.48-0.59 | 0.50-0.57 | < 0.70 |
+| held-out L1 with shuffled clouds / held-out L1 | 1.32-1.74 | 1.42-1.66 | > 1.25 |
+
+(With half the episodes, 30 to train and 6 held out, single runs spread over 0.54-0.78 and 1.08-1.66: the first
+version's bounds of 0.65 and 1.3 on one seed sat inside that spread, and failed on another machine.)
 """
 
 from __future__ import annotations
+
+from statistics import mean
 
 import pytest
 import torch
@@ -15,7 +30,10 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetad
 from lerobot.policies.factory import make_policy, make_pre_post_processors
 from lerobot.utils.feature_utils import dataset_to_policy_features
 
-TRAIN_EPISODES, TEST_EPISODES = 30, 6
+from tests.helpers import one_thread
+
+TRAIN_EPISODES, TEST_EPISODES = 60, 12
+SEEDS = (0, 1, 2)
 
 
 @pytest.fixture(scope="module")
@@ -25,10 +43,14 @@ def task_dataset(tmp_path_factory, synthetic_module):
     )
 
 
-@pytest.mark.slow
-def test_pointcloud_policy_beats_the_mean_action(task_dataset):
-    torch.manual_seed(0)
-    meta = LeRobotDatasetMetadata("local/learn", root=task_dataset)
+def train_and_measure(
+    dataset, seed: int = 0, steps: int = 400, train_episodes: int = TRAIN_EPISODES, test_episodes: int = TEST_EPISODES
+) -> dict[str, float]:
+    """Train the point-cloud policy `steps` AdamW steps from `seed` on the training episodes; its L1 errors (the
+    last 25 training batches, the held-out episodes, the held-out episodes with their point clouds shuffled) and
+    the mean action's."""
+    torch.manual_seed(seed)
+    meta = LeRobotDatasetMetadata("local/learn", root=dataset)
     feats = dataset_to_policy_features(meta.features)
     cfg = PreTrainedConfig.get_choice_class("obs_act")(
         obs_space="pointcloud",
@@ -50,17 +72,15 @@ def test_pointcloud_policy_beats_the_mean_action(task_dataset):
     policy = make_policy(cfg, ds_meta=meta)
     pre, _ = make_pre_post_processors(cfg, dataset_stats=meta.stats)
     deltas = resolve_delta_timestamps(cfg, meta)
-    train = LeRobotDataset(
-        "local/learn", root=task_dataset, episodes=list(range(TRAIN_EPISODES)), delta_timestamps=deltas
-    )
+    train = LeRobotDataset("local/learn", root=dataset, episodes=list(range(train_episodes)), delta_timestamps=deltas)
     test = LeRobotDataset(
         "local/learn",
-        root=task_dataset,
+        root=dataset,
         delta_timestamps=deltas,
-        episodes=list(range(TRAIN_EPISODES, TRAIN_EPISODES + TEST_EPISODES)),
+        episodes=list(range(train_episodes, train_episodes + test_episodes)),
     )
     loader = torch.utils.data.DataLoader(
-        train, batch_size=16, shuffle=True, drop_last=True, generator=torch.Generator().manual_seed(0)
+        train, batch_size=16, shuffle=True, drop_last=True, generator=torch.Generator().manual_seed(seed)
     )
     batches = [pre(b) for b in loader]
     held_out = pre(next(iter(torch.utils.data.DataLoader(test, batch_size=len(test)))))
@@ -74,28 +94,36 @@ def test_pointcloud_policy_beats_the_mean_action(task_dataset):
     optimizer = torch.optim.AdamW(policy.parameters(), lr=1e-3)
     policy.train()
     losses = []
-    for step in range(400):
+    for step in range(steps):
         loss, _ = policy.forward(batches[step % len(batches)])
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
         losses.append(loss.item())
-
-    baseline_train = torch.stack([(b["action"] - mean_action).abs().mean() for b in batches]).mean().item()
-    baseline_test = (held_out["action"] - mean_action).abs().mean().item()
-    train_loss = sum(losses[-25:]) / 25
-    test_loss = l1(held_out)
-    print(
-        f"train L1 {train_loss:.3f} vs mean-action {baseline_train:.3f}; "
-        f"held-out {test_loss:.3f} vs {baseline_test:.3f}"
-    )
-    assert train_loss < 0.5 * baseline_train, (train_loss, baseline_train)
-    assert test_loss < 0.65 * baseline_test, (test_loss, baseline_test)
-    # control: the same states with other frames' point clouds -> much worse, so the cloud is what is used
+    # the control: the same states with other frames' point clouds
     perm = torch.roll(torch.arange(len(test)), 7)
     shuffled = {
         k: (v[perm] if k.startswith(("observation.images", "observation.depth")) else v) for k, v in held_out.items()
     }
-    shuffled_loss = l1(shuffled)
-    print(f"held-out with shuffled point clouds {shuffled_loss:.3f}")
-    assert shuffled_loss > 1.3 * test_loss
+    return {
+        "train": sum(losses[-25:]) / 25,
+        "train_mean_action": torch.stack([(b["action"] - mean_action).abs().mean() for b in batches]).mean().item(),
+        "held_out": l1(held_out),
+        "held_out_mean_action": (held_out["action"] - mean_action).abs().mean().item(),
+        "held_out_shuffled": l1(shuffled),
+    }
+
+
+@pytest.mark.slow
+def test_pointcloud_policy_beats_the_mean_action(task_dataset):
+    with one_thread():
+        runs = [train_and_measure(task_dataset, seed) for seed in SEEDS]
+    ratios = {
+        "train": mean(r["train"] / r["train_mean_action"] for r in runs),
+        "held_out": mean(r["held_out"] / r["held_out_mean_action"] for r in runs),
+        "shuffled": mean(r["held_out_shuffled"] / r["held_out"] for r in runs),
+    }
+    print(ratios, runs)
+    assert ratios["train"] < 0.55, ratios  # it fits the training episodes
+    assert ratios["held_out"] < 0.70, ratios  # and the held-out ones
+    assert ratios["shuffled"] > 1.25, ratios  # with the point cloud: another frame's cloud makes it worse
