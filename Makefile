@@ -34,10 +34,12 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check $(CODE)
 	$(BIN)/lint-imports --no-logo
 
-# README test command: the code checks, then the whole suite, fast tests first, then the slow end-to-end ones.
+# README test command: the code checks, then the whole suite, fast tests first, then the slow end-to-end ones in two
+# processes, a test file each (its module fixtures stay in one process): they spend much of their time starting
+# subprocesses and simulators, so two at a time finish sooner even on 2 cores (times: docs/performance.md).
 test: lint
 	$(BIN)/python -m pytest -m "not slow" -q
-	$(BIN)/python -m pytest -m slow -q
+	$(BIN)/python -m pytest -m slow -q -n 2 --dist loadfile --durations=10
 
 test-fast: $(STAMP)
 	$(BIN)/python -m pytest -m "not slow" -q

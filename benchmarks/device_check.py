@@ -188,7 +188,7 @@ class DeviceCheck:
             **machine(),
             "nvidia_smi": smi.stdout.strip() if smi else None,
             "cuda_available": torch.cuda.is_available(),
-            "vulkan_icd": os.environ.get("VK_ICD_FILENAMES") or use_nvidia_vulkan_icd(),
+            "vulkan_icd": use_nvidia_vulkan_icd(),
             "versions": versions,
         }
 

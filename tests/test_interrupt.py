@@ -25,7 +25,7 @@ def interrupt(proc, settle: float = 2.0) -> str:
 
 
 def test_ctrl_c_during_a_grid_keeps_its_results_and_the_same_command_finishes_it(tmp_path):
-    grid = one_run_grid(tmp_path / "one.yaml", ("steps: 3", "steps: 200\ncheckpoints: 1"))
+    grid = one_run_grid(tmp_path / "one.yaml", ("steps: 3", "steps: 200"))
     plain, out = tmp_path / "plain", tmp_path / "out"
     finish("run", str(grid), "--out", str(plain), "--threads", "1")
     proc = obsbench("run", str(grid), "--out", str(out), "--threads", "1", start_new_session=True)
