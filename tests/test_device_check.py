@@ -188,11 +188,16 @@ def test_the_part_limit_leaves_room_for_the_working_tree():
 @pytest.mark.slow
 def test_the_bundle_carries_what_the_check_imports_and_the_image_lacks():
     """The distributions the check's modules load, less the GPU image's: the simulator, LeRobot and its dataset
-    stack, never torch or numpy (the image's) nor this plugin (it travels as source)."""
-    needed = device_bundle.needed_distributions(with_spconv=False)
+    stack, never torch or numpy (the image's) nor this plugin (its own wheel is built apart)."""
+    from importlib.metadata import version
+
+    needed = device_bundle.needed_distributions(with_spconv=True)
     assert {"lerobot", "mani-skill", "sapien", "av", "diffusers", "gymnasium", "datasets", "draccus"} <= set(needed)
     assert not {"torch", "numpy", "lerobot-policy-obsbench", "huggingface-hub", "opencv-python"} & set(needed)
     assert needed["lerobot"] == "0.6.1" and needed["mani-skill"] == "3.0.1"
+    # SpUNet-34 on the GPU: spconv's CUDA build at this venv's (CPU) spconv version, never the CPU one
+    assert needed["spconv-cu126"] == version("spconv") and needed["cumm-cu126"] == version("cumm")
+    assert "spconv" not in needed and "cumm" not in needed
 
 
 def test_a_check_out_of_time_skips_its_stages_and_still_writes_its_json(tmp_path):
