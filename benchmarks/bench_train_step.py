@@ -141,9 +141,11 @@ def release(device: torch.device) -> None:
         torch.cuda.empty_cache()
 
 
-def preset_rows(preset: str, device: torch.device, size: int, batches: dict, repeats: int) -> tuple[list, list]:
-    """Rows (and skipped pairs, with why) of `--preset`: stock ACT / Diffusion, then every pair of PAIRS[preset]
-    (and ACT's point cloud at the paper's 2048 tokens)."""
+def preset_rows(
+    preset: str, device: torch.device, size: int, batches: dict, repeats: int, pairs: list | None = None
+) -> tuple[list, list]:
+    """Rows (and skipped pairs, with why) of `--preset`: stock ACT / Diffusion, then every (space, encoder) of
+    `pairs` (default: PAIRS[preset], and for ACT the point cloud at the paper's 2048 tokens)."""
     frames = cluttered_frames(load_synthetic(), max(batches.values()), size)
     inputs, outputs = features(size)
     rows, skipped = [], []
@@ -184,9 +186,9 @@ def preset_rows(preset: str, device: torch.device, size: int, batches: dict, rep
         print(f"stock {kind}-resnet18: {base['median_ms']:.0f} ms")
         del stock
         release(device)
-        pairs = PAIRS[preset] + ([("pointcloud", "pointnet@2048")] if kind == "act" else [])
+        timed_pairs = pairs or PAIRS[preset] + ([("pointcloud", "pointnet@2048")] if kind == "act" else [])
         reference = None
-        for space, encoder in pairs:
+        for space, encoder in timed_pairs:
             if encoder == "spunet34" and (problem := spconv_problem(device)):
                 skipped.append({"policy": f"obs_{kind}", "obs_space": space, "encoder": encoder, "why": problem})
                 print(f"obs_{kind} {space:10s} {encoder:14s}: skipped, {problem}")
@@ -211,7 +213,7 @@ def preset_rows(preset: str, device: torch.device, size: int, batches: dict, rep
                     "params_M": params_millions(policy),
                     **t,
                     "ratio": ratio,
-                    f"vs_{pairs[0][0]}_{pairs[0][1]}": round(t["median_ms"] / reference["median_ms"], 2),
+                    f"vs_{timed_pairs[0][0]}_{timed_pairs[0][1]}": round(t["median_ms"] / reference["median_ms"], 2),
                 }
             )
             print(

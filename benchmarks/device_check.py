@@ -84,7 +84,8 @@ class Sizes:
     sim_steps: int  # random-action steps per env and measurement
     success_episodes: int  # test seeds of the success stage
     success_cpu_workers: int  # lockstep workers of its CPU simulation
-    train_preset: str  # bench_train_step's preset (its space x encoder pairs)
+    train_preset: str  # bench_train_step's preset
+    train_pairs: tuple | None  # its (space, encoder) pairs; None: all of the preset's
     train_batch: int | None  # None: the paper's batches
     train_image_size: int
     train_repeats: int
@@ -92,9 +93,10 @@ class Sizes:
     preprocess_size: int
 
 
-FULL = Sizes((64, 128), (1, 16, 64, 256), (1, 16), 50, 64, 16, "paper", None, 128, 5, 32, 128)
-# the smallest image that LeRobot's stock Diffusion ResNet-18 builds at (its batch-1 shape probe needs 2x2 maps)
-TINY = Sizes((64,), (1, 2), (1, 2), 3, 2, 2, "cpu", 2, 64, 1, 2, 32)
+FULL = Sizes((64, 128), (1, 16, 64, 256), (1, 16), 50, 64, 16, "paper", None, None, 128, 5, 32, 128)
+# one image and one point encoder; 64²: the smallest image LeRobot's stock Diffusion ResNet-18 builds at (its batch-1
+# shape probe needs 2x2 maps)
+TINY = Sizes((64,), (1, 2), (1,), 3, 2, 2, "cpu", (("rgb", "resnet18"), ("pointcloud", "pointnet")), 2, 64, 1, 2, 32)
 
 
 def use_nvidia_vulkan_icd() -> str | None:
@@ -288,7 +290,10 @@ class DeviceCheck:
         prepare(device)
         sizes = self.sizes
         batches = {kind: sizes.train_batch or batch for kind, batch in PAPER_BATCH.items()}
-        rows, skipped = preset_rows(sizes.train_preset, device, sizes.train_image_size, batches, sizes.train_repeats)
+        pairs = list(sizes.train_pairs) if sizes.train_pairs else None
+        rows, skipped = preset_rows(
+            sizes.train_preset, device, sizes.train_image_size, batches, sizes.train_repeats, pairs
+        )
         return {
             "preset": sizes.train_preset,
             "batch": batches,

@@ -409,10 +409,15 @@ def test_the_device_check_runs_end_to_end_on_cpu_at_tiny_sizes(checkpoint, tmp_p
     assert success["episodes"] == 2 and len(success["per_seed"]) == 2 and success["batch_size"] == 2
     assert success["env_steps"] == sum(success["lengths"]) > 0
     rows = stages["cpu_simulation"]["rows"]
-    assert [(r["batch_size"], r["image_size"]) for r in rows] == [(1, 64), (2, 64)]
+    assert [(r["batch_size"], r["image_size"]) for r in rows] == [(1, 64)]
     assert all(r["env_steps_per_s"] > 0 and r["depth"] == "uint16 on cpu" for r in rows)
+    one_env = stages["cpu_simulation"]["with_policy_one_env"]
+    assert one_env["batch_size"] == 1 and one_env["episodes"] == 1 and one_env["env_steps_per_s"] > 0
     train = stages["train_step"]
-    assert {r["obs_space"] for r in train["rows"] if r["policy"] == "obs_act"} >= {"rgb", "pointcloud", "rgbd"}
+    assert {(r["policy"], r["obs_space"]) for r in train["rows"]} == {
+        ("stock act", "rgb"), ("obs_act", "rgb"), ("obs_act", "pointcloud"),
+        ("stock diffusion", "rgb"), ("obs_diffusion", "rgb"), ("obs_diffusion", "pointcloud"),
+    }  # fmt: skip
     assert {(r["obs_space"], r["encoder"]) for r in train["quick_grid"]} == {
         ("none", "blind"), ("state", "oracle"), ("rgb", "spatial_softmax"), ("pointcloud", "dp3")
     }  # fmt: skip
