@@ -193,7 +193,12 @@ def fetch_wheel(name: str, version: str, cache: Path) -> Path:
         if platform.machine() != "x86_64" or sys.version_info[:2] != (3, 12):
             raise SystemExit(f"device_bundle: {name}=={version} has no x86-64 wheel and this Python cannot build one")
         build = [sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "-w", str(cache), f"{name}=={version}"]
-        subprocess.run(build, check=True)
+        built = subprocess.run(build, capture_output=True, text=True)
+        if built.returncode:
+            raise SystemExit(
+                f"device_bundle: {name}=={version}: no wheel from PyPI ({done.stderr.strip()[-500:]}) and building "
+                f"one failed ({built.stderr.strip()[-500:]})"
+            )
     found = _cached(name, version, cache)
     if not found:
         raise SystemExit(f"device_bundle: no wheel of {name}=={version} after downloading")
