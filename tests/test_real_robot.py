@@ -130,22 +130,43 @@ def test_record_train_and_roll_out_on_the_fake_bimanual_robot(tmp_path, syntheti
     assert proc.returncode == 0, proc.stderr[-3000:]
     checkpoint = out / "checkpoints" / "last" / "pretrained_model"
 
+    # each episode ends after the policy's third action (the operator's early-exit key), however slow this machine
+    # runs the policy; episode_time_s only bounds a loop that never stops
     goals_before = len(fake_hardware.motor_state(PORTS["follower_left"]).goals)
-    operator = Operator(start=lambda i: True, judge=lambda i: i == 0, events=events)
+    policy_actions = {"left": 0}
+
+    def three_step_robot():
+        robot = make_robot_from_config(robot_cfg)
+        send_action = robot.send_action
+
+        def counted(action):
+            policy_actions["left"] -= 1
+            if policy_actions["left"] == 0:
+                events["exit_early"] = True
+            return send_action(action)
+
+        robot.send_action = counted
+        return robot
+
+    def start(i):
+        policy_actions["left"] = 3
+        return True
+
+    operator = Operator(start=start, judge=lambda i: i == 0, events=events)
     rollout_cfg = RolloutConfig(
         policy_path=str(checkpoint),
         episodes=2,
-        episode_time_s=0.5,
+        episode_time_s=120,
         fps=10,
         rest_time_s=0.1,
         out=str(tmp_path / "rollouts"),
     )
-    result = rollout(make_robot_from_config(robot_cfg), rollout_cfg, operator)
+    result = rollout(three_step_robot(), rollout_cfg, operator)
     assert result["episodes"] == 2 and result["successes"] == 1 and result["ci95"][0] < 0.5 < result["ci95"][1]
     saved = json.loads((tmp_path / "rollouts" / "results.json").read_text())
     assert saved["successes"] == 1 and saved["robot"] == robot_cfg.type
     assert all(
-        r["steps"] >= 2 and (tmp_path / "rollouts" / f"episode_{r['episode']:03d}.mp4").is_file()
+        r["steps"] == 3 and (tmp_path / "rollouts" / f"episode_{r['episode']:03d}.mp4").is_file()
         for r in result["per_episode"]
     )
     assert len(fake_hardware.motor_state(PORTS["follower_left"]).goals) > goals_before + 4
@@ -153,8 +174,8 @@ def test_record_train_and_roll_out_on_the_fake_bimanual_robot(tmp_path, syntheti
     # asynchronous inference: chunks computed off the loop, the arm acting on every step
     rollout_cfg.async_inference = True
     rollout_cfg.out = str(tmp_path / "rollouts_async")
-    result = rollout(make_robot_from_config(robot_cfg), rollout_cfg, operator)
-    assert all(r["chunks"] >= 1 and r["steps"] >= 2 for r in result["per_episode"])
+    result = rollout(three_step_robot(), rollout_cfg, operator)
+    assert all(r["chunks"] >= 1 and r["steps"] == 3 for r in result["per_episode"])
     rollout_cfg.async_inference = False
 
     # a checkpoint trained on 80x60 frames refuses a camera that now gives 40x30
