@@ -3,7 +3,8 @@
 Importing the package registers the `obs_act` and `obs_diffusion` policy types, the `obsbench` env type, the
 real-robot hardware types (`obsbench_realsense_rgbd`, `obsbench_koch_follower`, `obsbench_bi_koch_follower`,
 `obsbench_bi_koch_leader`) and the encoder registry with LeRobot, and applies the plugin's narrow LeRobot
-data-loading fixes (see `lerobot_obsbench.patches`).
+data-loading fixes (see `lerobot_obsbench.patches`); lerobot-train then loads only what the plugin's policies
+read, decoded once (`lerobot_obsbench.dataset_reads`).
 """
 
 import os
@@ -12,13 +13,14 @@ from importlib.metadata import version
 # SVT-AV1, LeRobot's video encoder, prints ~20 banner lines per encoded episode; keep its errors only.
 os.environ.setdefault("SVT_LOG", "1")
 
-from lerobot_obsbench import patches
+from lerobot_obsbench import dataset_reads, patches
 
-patches.apply()
+if patches.apply():
+    dataset_reads.install()
 
-from lerobot_obsbench import encoders, envs, policies, robots  # noqa: E402  (registration side effects)
-from lerobot_obsbench.encoders import available_encoders, make_encoder  # noqa: E402
-from lerobot_obsbench.spaces import ObservationAdapter  # noqa: E402
+from lerobot_obsbench import encoders, envs, policies, robots  # (registration side effects)
+from lerobot_obsbench.encoders import available_encoders, make_encoder
+from lerobot_obsbench.spaces import ObservationAdapter
 
 __version__ = version("lerobot_policy_obsbench")  # one source: pyproject.toml (the distribution name)
 __all__ = [

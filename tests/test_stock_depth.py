@@ -95,6 +95,39 @@ def test_training_step_on_a_stock_dataset(calibrated):
         loss.backward()
 
 
+@pytest.mark.parametrize(
+    ("obs_space", "sensors"),
+    [("rgb", {"front"}), ("depth", {"front_depth"}), ("pointcloud", {"front", "front_depth"})],
+)
+def test_training_reads_the_stock_depth_map_only_where_the_space_needs_depth(
+    calibrated, monkeypatch, obs_space, sensors
+):
+    """lerobot-train's dataset serves the stock depth map (video or 16-bit images) only to a space that needs depth,
+    exactly as LeRobot's reader serves it."""
+    from lerobot.datasets import factory
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
+
+    from lerobot_obsbench import dataset_reads
+    from lerobot_obsbench.policies import ObsDiffusionConfig
+
+    config = ObsDiffusionConfig(obs_space=obs_space, device="cpu")
+    meta = LeRobotDatasetMetadata("local/stock_depth", root=calibrated)
+    assert {k.removeprefix("observation.images.") for k in config.dataset_reads(meta) if "images" in k} == sensors
+    served = {}
+    for reader in ("memory", "stock"):
+        monkeypatch.setenv(dataset_reads.READER_ENV, reader)
+        delta_timestamps = factory.resolve_delta_timestamps(config, meta)
+        dataset = LeRobotDataset("local/stock_depth", root=calibrated, delta_timestamps=delta_timestamps)
+        served[reader] = [dataset[i] for i in (0, 11, 12, len(dataset) - 1)]
+    for sample, expected in zip(served["memory"], served["stock"], strict=True):
+        assert {k.removeprefix("observation.images.") for k in sample if k.startswith("observation.images.")} == {
+            *sensors,
+            *(f"{s}_is_pad" for s in sensors),
+        }
+        for key, value in sample.items():
+            assert torch.equal(value, expected[key]) if isinstance(value, torch.Tensor) else value == expected[key]
+
+
 def test_without_calibration_the_error_names_the_command(stock_dataset, tmp_path, capsys):
     import shutil
 

@@ -22,6 +22,7 @@ from lerobot_obsbench.policies.onecycle import OneCycleSchedulerConfig
 from lerobot_obsbench.schema import (
     DEPTH_IMAGE_SPACES,
     DEPTH_NORMALIZATIONS,
+    DEPTH_PREFIX,
     EE_POSE_SIZE,
     FRAMES,
     ORACLE_SPACES,
@@ -39,7 +40,9 @@ from lerobot_obsbench.schema import (
     is_sensor_key,
     sensor_keys,
     stock_depth_cameras,
+    stock_depth_key,
     validate_features,
+    with_calibrated_depth,
 )
 from lerobot_obsbench.spaces import DEFAULT_WORKSPACE, check_geometry
 
@@ -56,6 +59,14 @@ ENCODER_FIELDS = {
     "point_pipeline": "pipeline",
 }
 POINT_CHOICES = ("point_features", "sampling", "num_tokens", "knn", "point_pipeline")
+
+
+def dataset_calibration(dataset_meta) -> dict[str, dict]:
+    """The attached calibration (CameraCalibration fields) of each camera the dataset recorded LeRobot depth for."""
+    if getattr(dataset_meta, "root", None) is None:
+        return {}
+    calibration = read_calibration(dataset_meta.root)
+    return {cam: calibration[cam].to_dict() for cam in stock_depth_cameras(dataset_meta.features) if cam in calibration}
 
 
 def _plain(value):
@@ -300,9 +311,25 @@ class ObservationConfig:
         loaded checkpoint keeps the calibration it was trained with)."""
         if dataset_meta is None or self.depth_calibration or getattr(dataset_meta, "root", None) is None:
             return
-        stock = stock_depth_cameras(dataset_meta.features)
-        calibration = read_calibration(dataset_meta.root)
-        self.depth_calibration = {cam: calibration[cam].to_dict() for cam in stock if cam in calibration}
+        self.depth_calibration = dataset_calibration(dataset_meta)
+
+    def dataset_reads(self, dataset_meta) -> set[str]:
+        """The dataset features this policy reads in training: every feature that is not a sensor (state, action,
+        ...) and the sensors of its space on its cameras (a calibrated LeRobot depth map where it stands in for
+        the schema's depth). lerobot-train then loads nothing else (`lerobot_obsbench.dataset_reads`)."""
+        features = dataset_meta.features
+        reads = {key for key in features if not is_sensor_key(key)}
+        if self.obs_space in ORACLE_SPACES:
+            return reads | {PRIVILEGED_STATE_KEY}
+        calibration = self.depth_calibration or dataset_calibration(dataset_meta)
+        policy_features = with_calibrated_depth(features, calibration)
+        cameras = validate_features(policy_features, self.obs_space, self.cameras or None, calibration)
+        for key in sensor_keys(self.obs_space, cameras):
+            if key in features:
+                reads.add(key)
+            elif key.startswith(DEPTH_PREFIX):  # registered from the camera's LeRobot depth map
+                reads.add(stock_depth_key(key.removeprefix(DEPTH_PREFIX)))
+        return reads
 
     def observation_keys(self) -> list[str]:
         oracle = [PRIVILEGED_STATE_KEY] if self.obs_space in ORACLE_SPACES else []

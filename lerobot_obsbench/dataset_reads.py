@@ -1,0 +1,266 @@
+"""Training reads only what the policy reads, decoded once.
+
+LeRobot 0.6.1's reader serves every column of a row and decodes every camera's video for every sample: a blind
+policy's batch costs the colour video and the depth arrays it never looks at, and a small dataset is decoded again
+at every step. A policy config that declares the dataset features it reads — `dataset_reads(dataset_meta)`, as
+the plugin's policies do — gets instead, under stock `lerobot-train`:
+
+1. **only those features** (with LeRobot's index columns, the task string and their `_is_pad` masks) in each
+   sample: no other video is decoded, no other column formatted;
+2. **decoded once**: when they fit `OBSBENCH_DATASET_MEMORY_MB` (default 2048 MiB, estimated from the features
+   before anything is decoded), the read columns and every frame of the read videos are decoded into memory when
+   the dataset is loaded, and each sample is then served from memory. Every served value is the one LeRobot's
+   reader returns for that index (same frames, dtypes and shapes: `tests/test_dataset_reads.py`). The cache
+   lives in the training process (DataLoader workers share it by fork) and nothing is written to the dataset; a
+   dataset over the budget is streamed with only the read keys, with one log line saying so.
+
+How the reads reach the reader: lerobot-train builds the dataset before the policy, and the one call that sees
+both the policy config and the dataset is `resolve_delta_timestamps(policy_config, dataset_meta)`, whose result
+LeRobot hands to the dataset's `DatasetReader`. The patched resolver returns that mapping tagged with the
+policy's reads (`PolicyQuery`); the reader honours the tag. Datasets opened any other way read as LeRobot does.
+
+`OBSBENCH_DATASET_READER` chooses the reader for tagged datasets: `memory` (the default), `filtered` (the read
+keys, streamed) or `stock` (LeRobot's reader, untouched: the comparison `benchmarks/bench_train_loop.py` makes).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from collections.abc import Callable
+
+import numpy as np
+import torch
+from datasets.formatting.formatting import NumpyArrowExtractor
+from lerobot.configs import DEPTH_METER_UNIT
+from lerobot.datasets import factory
+from lerobot.datasets.dataset_reader import DatasetReader
+from lerobot.datasets.depth_utils import MM_PER_METRE
+
+from lerobot_obsbench.errors import ObsBenchError
+from lerobot_obsbench.patches import LeRobotTorchFormatter
+
+logger = logging.getLogger(__name__)
+
+READER_ENV = "OBSBENCH_DATASET_READER"
+MEMORY_ENV = "OBSBENCH_DATASET_MEMORY_MB"
+READERS = ("memory", "filtered", "stock")
+DEFAULT_MEMORY_MB = 2048
+# LeRobot's own per-row columns, which its reader uses to place a sample in its episode
+INDEX_COLUMNS = ("timestamp", "frame_index", "episode_index", "index", "task_index")
+
+_STOCK = {
+    "resolve": factory.resolve_delta_timestamps,
+    "init": DatasetReader.__init__,
+    "try_load": DatasetReader.try_load,
+    "load_and_activate": DatasetReader.load_and_activate,
+    "get_item": DatasetReader.get_item,
+}
+
+
+class PolicyQuery(dict):
+    """`resolve_delta_timestamps`'s mapping (feature -> time offsets), carrying the features the policy reads."""
+
+    def __init__(self, delta_timestamps: dict | None, reads: frozenset[str]):
+        super().__init__(delta_timestamps or {})
+        self.reads = reads
+
+
+def reader_choice() -> str:
+    choice = os.environ.get(READER_ENV, "memory")
+    if choice not in READERS:
+        raise ObsBenchError(f"{READER_ENV}={choice!r}: choose one of {', '.join(READERS)} (default memory).")
+    return choice
+
+
+def memory_budget_bytes() -> int:
+    raw = os.environ.get(MEMORY_ENV, str(DEFAULT_MEMORY_MB))
+    try:
+        budget = float(raw)
+    except ValueError:
+        budget = -1.0
+    if not budget >= 0:  # also refuses NaN
+        raise ObsBenchError(f"{MEMORY_ENV}={raw!r}: give the memory budget in MiB, a number >= 0 (0 streams).")
+    return int(budget * 2**20)
+
+
+def resolve_delta_timestamps(cfg, ds_meta):
+    """LeRobot's resolver; for a config that declares its reads, the result tagged with them."""
+    delta_timestamps = _STOCK["resolve"](cfg, ds_meta)
+    declare: Callable | None = getattr(cfg, "dataset_reads", None)
+    if declare is None or reader_choice() == "stock":
+        return delta_timestamps
+    return PolicyQuery(delta_timestamps, frozenset(declare(ds_meta)))
+
+
+class StreamedRows:
+    """The read keys of each sample, streamed from the dataset's files as LeRobot does, without the others."""
+
+    def __init__(self, reader: DatasetReader, columns: list[str], videos: list[str]):
+        self.reader, self.videos = reader, videos
+        self.table = reader.hf_dataset.select_columns(columns)
+
+    def row(self, rel: int) -> dict:
+        return self.table[rel]
+
+    def stack(self, key: str, rels: list[int]) -> torch.Tensor:
+        return torch.stack(self.table.select_columns([key])[rels][key])
+
+    def frames(self, ep_idx: int, rels_by_video: dict[str, list[int]]) -> dict[str, torch.Tensor]:
+        timestamps = self.table.select_columns(["timestamp"])
+        query = {key: torch.stack(timestamps[rels]["timestamp"]).tolist() for key, rels in rels_by_video.items()}
+        return self.reader._query_videos(query, ep_idx)
+
+
+class MemoryRows:
+    """Every read column and every frame of every read video, decoded once; samples served by indexing."""
+
+    def __init__(self, reader: DatasetReader, columns: list[str], videos: list[str]):
+        self.videos = videos
+        self.formatter = LeRobotTorchFormatter(features=reader.hf_dataset.features)
+        table = reader.hf_dataset.select_columns(columns).with_format("arrow")[:]
+        # the stored dtypes (uint16 depth stays 2 bytes), images as PIL: what LeRobot's formatter tensorizes per row
+        self.columns = self.formatter.python_features_decoder.decode_batch(NumpyArrowExtractor().extract_batch(table))
+        self.decoded = {key: [None] * len(table) for key in videos}
+        episodes, timestamps = self.columns["episode_index"], self.columns["timestamp"]
+        for ep_idx in np.unique(episodes).tolist():
+            rels = np.flatnonzero(episodes == ep_idx)
+            query = {key: timestamps[rels].tolist() for key in videos}
+            for key, frames in reader._query_videos(query, ep_idx).items():
+                frames = frames.reshape(len(rels), *frames.shape[-3:])  # one-frame episodes come back squeezed
+                for rel, frame in zip(rels.tolist(), frames, strict=True):
+                    self.decoded[key][rel] = frame
+        self.frames_of = {key: torch.stack(frames) for key, frames in self.decoded.items()}
+        del self.decoded
+
+    def row(self, rel: int) -> dict:
+        return {key: self.formatter._recursive_tensorize(column[rel]) for key, column in self.columns.items()}
+
+    def stack(self, key: str, rels: list[int]) -> torch.Tensor:
+        column = self.columns[key]
+        if isinstance(column, np.ndarray) and column.dtype.kind in "iuf":  # the rows at once, same dtype rules
+            return self.formatter._tensorize(column[np.asarray(rels)])
+        return torch.stack([self.formatter._recursive_tensorize(column[rel]) for rel in rels])
+
+    def frames(self, ep_idx: int, rels_by_video: dict[str, list[int]]) -> dict[str, torch.Tensor]:
+        out = {}
+        for key, rels in rels_by_video.items():
+            if len(rels) == 1:  # LeRobot squeezes a single queried frame
+                out[key] = self.frames_of[key][rels[0]].clone()
+            else:
+                out[key] = self.frames_of[key].index_select(0, torch.tensor(rels))
+        return out
+
+
+def estimated_bytes(reader: DatasetReader, columns: list[str], videos: list[str]) -> int:
+    """Memory the decoded read keys take, from the features alone (before anything is decoded)."""
+    features = reader._meta.features
+    per_row = 0
+    for key in columns + videos:
+        dtype = features[key]["dtype"]
+        if key in videos:  # uint8 frames, unless LeRobot returns floats (depth videos, or return_uint8=False)
+            itemsize = 1 if reader._return_uint8 and key not in reader._meta.depth_keys else 4
+        elif dtype == "image":
+            itemsize = 1
+        else:
+            try:
+                itemsize = np.dtype(dtype).itemsize
+            except TypeError:  # strings: a pointer's worth per value
+                itemsize = 8
+        per_row += int(np.prod(features[key]["shape"])) * itemsize
+    return per_row * reader.num_frames
+
+
+def read_plan(reader: DatasetReader) -> tuple[list[str], list[str]]:
+    """(columns, videos) a tagged reader serves: the read features, and LeRobot's index columns."""
+    reads = reader._obsbench_reads
+    columns = [key for key in reader.hf_dataset.column_names if key in reads or key in INDEX_COLUMNS]
+    return columns, [key for key in reader._meta.video_keys if key in reads]
+
+
+def attach_rows(reader: DatasetReader) -> None:
+    """Give a loaded, tagged reader its rows: in memory when they fit the budget, else streamed."""
+    columns, videos = read_plan(reader)
+    needed, budget = estimated_bytes(reader, columns, videos), memory_budget_bytes()
+    if reader_choice() == "memory" and needed <= budget:
+        start = time.perf_counter()
+        reader._obsbench_rows = MemoryRows(reader, columns, videos)
+        logger.info(
+            f"obsbench: {reader.num_frames} frames of {len(columns) + len(videos)} read keys decoded into memory "
+            f"({needed / 2**20:.0f} MiB, {time.perf_counter() - start:.1f} s); not read: "
+            f"{', '.join(sorted(set(reader._meta.features) - set(columns) - set(videos))) or 'nothing'}"
+        )
+        return
+    if reader_choice() == "memory":
+        logger.info(
+            f"obsbench: the read keys need ~{needed / 2**20:.0f} MiB, over {MEMORY_ENV}={budget / 2**20:.0f}: "
+            "streaming them from the dataset's files instead"
+        )
+    reader._obsbench_rows = StreamedRows(reader, columns, videos)
+
+
+def reader_init(self, *args, **kwargs):
+    _STOCK["init"](self, *args, **kwargs)
+    delta_timestamps = kwargs.get("delta_timestamps", args[5] if len(args) > 5 else None)
+    self._obsbench_reads = getattr(delta_timestamps, "reads", None)
+    self._obsbench_rows = None
+
+
+def reader_try_load(self) -> bool:
+    loaded = _STOCK["try_load"](self)
+    if loaded and self._obsbench_reads is not None:
+        attach_rows(self)
+    return loaded
+
+
+def reader_load_and_activate(self) -> None:
+    _STOCK["load_and_activate"](self)
+    if self._obsbench_reads is not None:
+        attach_rows(self)
+
+
+def reader_get_item(self, idx) -> dict:
+    """LeRobot's `DatasetReader.get_item`, serving only the read keys from `self._obsbench_rows`."""
+    rows = getattr(self, "_obsbench_rows", None)
+    if rows is None:
+        return _STOCK["get_item"](self, idx)
+    item = rows.row(idx)
+    ep_idx, abs_idx = item["episode_index"].item(), item["index"].item()
+
+    def relative(abs_indices: list[int]) -> list[int]:
+        mapping = self._absolute_to_relative_idx
+        return abs_indices if mapping is None else [mapping[i] for i in abs_indices]
+
+    rels_by_video = {key: [idx] for key in rows.videos}
+    if self.delta_indices is not None:
+        query_indices, padding = self._get_query_indices(abs_idx, ep_idx)
+        for key, abs_indices in query_indices.items():
+            if key not in self._obsbench_reads:
+                continue
+            item[f"{key}_is_pad"] = padding[f"{key}_is_pad"]
+            if key in rows.videos:
+                rels_by_video[key] = relative(abs_indices)
+            else:
+                item[key] = rows.stack(key, relative(abs_indices))
+    if rows.videos:
+        item = {**rows.frames(ep_idx, rels_by_video), **item}
+
+    if self._image_transforms is not None:
+        for cam in self._meta.camera_keys:
+            if cam in item and cam not in self._meta.depth_keys:
+                item[cam] = self._image_transforms(item[cam])
+    for key, stored_unit in self._image_depth_units.items():
+        if key in item and stored_unit is not None and stored_unit != self._depth_output_unit:
+            item[key] = item[key] * MM_PER_METRE if stored_unit == DEPTH_METER_UNIT else item[key] / MM_PER_METRE
+    item["task"] = self._meta.tasks.iloc[item["task_index"].item()].name
+    return item
+
+
+def install() -> None:
+    """Route lerobot-train's datasets through the policy's reads (see the module docstring)."""
+    factory.resolve_delta_timestamps = resolve_delta_timestamps
+    DatasetReader.__init__ = reader_init
+    DatasetReader.try_load = reader_try_load
+    DatasetReader.load_and_activate = reader_load_and_activate
+    DatasetReader.get_item = reader_get_item
