@@ -182,6 +182,7 @@ def read_plan(reader: DatasetReader) -> tuple[list[str], list[str]]:
 def attach_rows(reader: DatasetReader) -> None:
     """Give a loaded, tagged reader its rows: in memory when they fit the budget, else streamed."""
     columns, videos = read_plan(reader)
+    reader._obsbench_placement = Placement(reader)
     needed, budget = estimated_bytes(reader, columns, videos), memory_budget_bytes()
     if reader_choice() == "memory" and needed <= budget:
         start = time.perf_counter()
@@ -220,29 +221,48 @@ def reader_load_and_activate(self) -> None:
         attach_rows(self)
 
 
+class Placement:
+    """Where a sample's queried offsets land, as LeRobot's `_get_query_indices` places them (rows clamped to the
+    sample's episode, `_is_pad` where an offset falls outside it), from arrays built once instead of per sample."""
+
+    def __init__(self, reader: DatasetReader):
+        episodes = reader._meta.episodes
+        self.starts = np.asarray(list(episodes["dataset_from_index"]))
+        self.ends = np.asarray(list(episodes["dataset_to_index"]))
+        reads = reader._obsbench_reads
+        self.deltas = {key: np.asarray(d) for key, d in (reader.delta_indices or {}).items() if key in reads}
+        mapping = reader._absolute_to_relative_idx
+        self.relative = None
+        if mapping is not None:
+            self.relative = np.full(max(mapping) + 1, -1)
+            self.relative[list(mapping)] = list(mapping.values())
+        self.tasks = list(reader._meta.tasks.index)
+
+    def query(self, key: str, abs_idx: int, ep_idx: int) -> tuple[list[int], torch.Tensor]:
+        """(relative rows, padding mask) of `key`'s offsets around absolute frame `abs_idx`."""
+        wanted = abs_idx + self.deltas[key]
+        start, end = self.starts[ep_idx], self.ends[ep_idx]
+        rows = np.clip(wanted, start, end - 1)
+        if self.relative is not None:
+            rows = self.relative[rows]
+        return rows.tolist(), torch.from_numpy((wanted < start) | (wanted >= end))
+
+
 def reader_get_item(self, idx) -> dict:
     """LeRobot's `DatasetReader.get_item`, serving only the read keys from `self._obsbench_rows`."""
     rows = getattr(self, "_obsbench_rows", None)
     if rows is None:
         return _STOCK["get_item"](self, idx)
+    placement = self._obsbench_placement
     item = rows.row(idx)
     ep_idx, abs_idx = item["episode_index"].item(), item["index"].item()
-
-    def relative(abs_indices: list[int]) -> list[int]:
-        mapping = self._absolute_to_relative_idx
-        return abs_indices if mapping is None else [mapping[i] for i in abs_indices]
-
     rels_by_video = {key: [idx] for key in rows.videos}
-    if self.delta_indices is not None:
-        query_indices, padding = self._get_query_indices(abs_idx, ep_idx)
-        for key, abs_indices in query_indices.items():
-            if key not in self._obsbench_reads:
-                continue
-            item[f"{key}_is_pad"] = padding[f"{key}_is_pad"]
-            if key in rows.videos:
-                rels_by_video[key] = relative(abs_indices)
-            else:
-                item[key] = rows.stack(key, relative(abs_indices))
+    for key in placement.deltas:
+        rels, item[f"{key}_is_pad"] = placement.query(key, abs_idx, ep_idx)
+        if key in rows.videos:
+            rels_by_video[key] = rels
+        else:
+            item[key] = rows.stack(key, rels)
     if rows.videos:
         item = {**rows.frames(ep_idx, rels_by_video), **item}
 
@@ -253,7 +273,7 @@ def reader_get_item(self, idx) -> dict:
     for key, stored_unit in self._image_depth_units.items():
         if key in item and stored_unit is not None and stored_unit != self._depth_output_unit:
             item[key] = item[key] * MM_PER_METRE if stored_unit == DEPTH_METER_UNIT else item[key] / MM_PER_METRE
-    item["task"] = self._meta.tasks.iloc[item["task_index"].item()].name
+    item["task"] = placement.tasks[item["task_index"].item()]
     return item
 
 

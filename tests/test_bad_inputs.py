@@ -132,6 +132,29 @@ def report_out_is_a_file(root: Path) -> list[str]:
     return _results(root, TRAIN, _eval_line(episodes=50, successes=3))
 
 
+def report_json_over_its_results(root: Path) -> list[str]:
+    """Used to replace the results store with the summary (exit 0)."""
+    argv = _results(root, TRAIN, _eval_line(episodes=50, successes=3))
+    return [*argv, "--json", str(root / "results.jsonl")]
+
+
+def view_out_over_the_datasets_metadata(root: Path) -> list[str]:
+    """Used to overwrite the dataset's own meta/info.json with the viewer's recording (exit 0)."""
+    dataset = _finished_demos(root)
+    return ["view", "--root", str(dataset), "--out", str(dataset / "meta" / "info.json"), "--overwrite"]
+
+
+def report_into_a_dataset(root: Path) -> list[str]:
+    argv = _results(root, TRAIN, _eval_line(episodes=50, successes=3))
+    return [*argv[:-1], str(_finished_demos(root) / "report")]
+
+
+def view_ply_over_an_existing_file(root: Path) -> list[str]:
+    """Used to replace any existing file without being asked."""
+    (root / "cloud.ply").write_text("last week's cloud\n")
+    return ["view", "--root", str(root / "dataset"), "--ply", str(root / "cloud.ply")]
+
+
 def _grid(root: Path, text: str) -> list[str]:
     (root / "g.yaml").write_text(text)
     return ["run", str(root / "g.yaml"), "--out", str(root / "out"), "--dry-run"]
@@ -290,6 +313,10 @@ ROWS = [
     (calibrate_out_is_a_file, ["--out", "extrinsics is a file; give a folder"]),
     (view_out_is_a_directory, ["--out", "views is a directory; give a file path"]),
     (report_out_is_a_file, ["--out", "report is a file; give a folder"]),
+    (report_json_over_its_results, ["--json", "would write over this command's input"]),
+    (view_out_over_the_datasets_metadata, ["--out", "info.json would write over this command's input"]),
+    (report_into_a_dataset, ["--out", "is inside the LeRobot dataset", "write outputs outside datasets"]),
+    (view_ply_over_an_existing_file, ["--ply", "cloud.ply already exists; add --overwrite"]),
     (grid_with_a_duplicated_key, ["'steps' is given twice (lines 3 and 4)"]),
     (grid_with_a_duplicated_seed, ["seeds lists 1 more than once"]),
     (grid_below_the_smallest_frame, ["image_size must be a whole number >= 32; got 16"]),

@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     if len(configs) < 2:
         raise UsageError("give two or more cameras; the first is the reference")
     if args.ply:
-        check_output_file(args.ply, "--ply", overwrite=True)
+        check_output_file(args.ply, "--ply", overwrite=True, inputs=args.playback)
     workspace = crop_box(args.workspace, args.preset)
     frame, serials = live_frame(configs, args.extrinsics_dir)
     names = list(configs)

@@ -63,9 +63,10 @@ def run(args: argparse.Namespace) -> int:
     if args.results is not None and not args.results.is_file():
         raise ReportError(f"results file {args.results} not found (`obsbench run` writes OUT/results.jsonl)")
     out = args.out or (args.results.parent / "report" if args.results else Path("report"))
-    check_output_folder(out, "--out")
-    if args.json:
-        check_output_file(args.json, "--json", overwrite=True)  # a summary is regenerated, like the report
+    inputs = [path for path in (args.results, args.table) if path is not None and Path(path).exists()]
+    check_output_folder(out, "--out", inputs)
+    if args.json:  # a summary is regenerated, like the report; never over the results it summarises
+        check_output_file(args.json, "--json", overwrite=True, inputs=inputs)
     records = read_results(args.results) if args.results else []
     if args.results and not records:
         print(f"warning: no readable records in {args.results}", file=sys.stderr)

@@ -35,15 +35,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--voxel-size", type=float, default=0.005)
     p.add_argument("--out", type=Path, default=None, help="save an .rrd file (default without a display)")
     p.add_argument("--ply", type=Path, default=None, help="also write the policy's fused cloud as .ply (Open3D)")
+    p.add_argument("--overwrite", action="store_true", help="replace existing --out / --ply files")
 
 
 def run(args: argparse.Namespace) -> int:
     from lerobot_obsbench.datasets.view import crop_box, dataset_frame, live_camera_configs, live_frame, log_frame
 
-    if args.out:  # before the dataset or the cameras are opened
-        check_output_file(args.out, "--out", overwrite=True)
-    if args.ply:
-        check_output_file(args.ply, "--ply", overwrite=True)
+    inputs = [*([args.root] if args.root else []), *args.playback]
+    for path, flag in ((args.out, "--out"), (args.ply, "--ply")):  # before the dataset or the cameras are opened
+        if path:
+            check_output_file(path, flag, overwrite=args.overwrite, inputs=inputs)
     workspace = crop_box(args.workspace, args.preset)
     if args.root:
         frame = dataset_frame(args.root, args.frame, args.repo_id)
