@@ -404,3 +404,19 @@ def test_rlbench_rows_and_demonstration_counts_meet_the_papers_tables():
     assert cells["10 demos"]["obs_act/pointcloud/e"].startswith("0.02")  # (1/25 + 0/25) / 2
     assert cells["100 demos"]["obs_act/pointcloud/e"].startswith("0.16")  # (3/25 + 5/25) / 2
     assert cells["100 demos"]["PointNet (published)"].startswith("0.32")
+
+
+def test_every_record_written_twice_reports_exactly_what_once_does(tmp_path, capsys):
+    """Two results files concatenated (or a copied line) used to turn one training seed into "2 seeds" and a △
+    into a ▲: repeated run and evaluation ids are skipped, with one line saying how many."""
+    records = stored(record("b", "T", "none", 3, episodes=30), record("p", "T", "pointcloud", 25, episodes=30))
+    once, twice = tmp_path / "once.jsonl", tmp_path / "twice.jsonl"
+    for line in records:
+        append_result(once, line)
+    twice.write_text(once.read_text() * 2)
+    assert main(["report", str(once), "--out", str(tmp_path / "once")]) == 0
+    capsys.readouterr()
+    assert main(["report", str(twice), "--out", str(tmp_path / "twice")]) == 0
+    assert f"{len(records)} repeated record(s) skipped" in capsys.readouterr().err
+    assert (tmp_path / "twice" / "report.md").read_bytes() == (tmp_path / "once" / "report.md").read_bytes()
+    assert "(25/30) △" in (tmp_path / "once" / "report.md").read_text()

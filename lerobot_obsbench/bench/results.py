@@ -45,7 +45,7 @@ def read_results(path: Path, warn=None) -> list[dict]:
     path = Path(path)
     if not path.is_file():
         return []
-    records = []
+    records, seen, duplicates = [], set(), []
     for number, line in enumerate(path.read_text().splitlines(), start=1):
         if not line.strip():
             continue
@@ -73,7 +73,18 @@ def read_results(path: Path, warn=None) -> list[dict]:
         if problem:
             warn(f"{path}:{number}: results line skipped: {problem}; its evaluation will be redone")
             continue
+        identity = (record["kind"], record["run_id"] if record["kind"] == "train" else record.get("eval_id"))
+        if identity in seen:
+            duplicates.append(number)
+            continue
+        seen.add(identity)
         records.append(record)
+    if duplicates:  # one run counted twice would pass for two training seeds
+        warn(
+            f"{path}: {len(duplicates)} repeated record(s) skipped (lines {', '.join(map(str, duplicates[:5]))}"
+            f"{', ...' if len(duplicates) > 5 else ''}: a run or evaluation id seen before, e.g. from concatenated "
+            "files); the first of each is kept"
+        )
     return records
 
 
