@@ -420,3 +420,36 @@ def test_every_record_written_twice_reports_exactly_what_once_does(tmp_path, cap
     assert f"{len(records)} repeated record(s) skipped" in capsys.readouterr().err
     assert (tmp_path / "twice" / "report.md").read_bytes() == (tmp_path / "once" / "report.md").read_bytes()
     assert "(25/30) △" in (tmp_path / "once" / "report.md").read_text()
+
+
+def test_runs_differing_in_any_trained_field_are_separate_columns():
+    """Every field of a grid run's config but the method, task, seed and demonstration count changes what is
+    trained: two runs of one method and seed differing in any one of them are two columns, never one column of
+    "2 seeds" (a budget or batch size edited and re-run into the same --out used to pool)."""
+    from dataclasses import replace
+
+    from lerobot_obsbench.bench.grid import RunSpec
+    from lerobot_obsbench.bench.report import NOT_LABEL_FIELDS
+
+    base = RunSpec("T", "rgb", "e", "obs_act", 0, 1e-3, 10, "cpu", 16, "steps", 100, 64, ("cam",), "pd_ee_delta_pose")
+    changed = {
+        "lr": 1e-4,
+        "preset": "tiny",
+        "batch_size": 8,
+        "budget_unit": "frame_epochs",
+        "budget": 200,
+        "image_size": 128,
+        "cameras": ("cam", "wrist"),
+        "control_mode": "pd_joint_delta_pos",
+        "policy_overrides": (("use_vae", False),),
+        "language_goal": "clip",
+    }
+    assert set(changed) | set(NOT_LABEL_FIELDS) == set(base.config()) | {"language_goal"}  # every field perturbed
+    for field, value in changed.items():
+        other = replace(base, **{field: value})
+        records = [
+            {**record(run.run_id, "T", "rgb", 5), "config": run.config(), "method": run.method} for run in (base, other)
+        ]
+        cells = cells_by_task(records)["T"]
+        assert len(cells) == 2 and all(cell.seeds == 1 for cell in cells.values()), field
+        assert any(field in label for label in cells), (field, list(cells))

@@ -38,8 +38,10 @@ from lerobot_obsbench.rlbench.paper_tasks import PAPER_ROWS, grid_task_name
 from lerobot_obsbench.schema import BLIND_SPACES, CONTROL_SPACES, ORACLE_SPACES
 from lerobot_obsbench.stats import seeds_and_episodes_interval, wilson_interval
 
-# Config fields that, when they differ between runs of one method, become part of its column label.
-LABEL_FIELDS = ("preset", "lr", "steps", "epochs", "image_size", "policy_overrides")
+# Run-config fields that never split a method's column: the method itself, the task (a row), the training seed
+# (what a column pools) and the demonstration count (the sample-efficiency axis). Every other field changes what
+# is trained, so where it differs between runs of one method it becomes part of the column label.
+NOT_LABEL_FIELDS = ("task", "policy", "obs_space", "encoder", "seed", "demos")
 
 
 @dataclass(frozen=True)
@@ -183,13 +185,15 @@ def run_views(records: list[dict], checkpoint: str = "best") -> list[dict]:
 
 
 def method_labels(records: list[dict]) -> dict[str, str]:
-    """run_id -> column label: policy/space/encoder, plus any LABEL_FIELDS that vary within that method."""
+    """run_id -> column label: policy/space/encoder, plus every run-config field (but NOT_LABEL_FIELDS) that
+    varies within that method."""
     by_method = defaultdict(list)
     for r in records:
         by_method[r["method"]].append(r)
     labels = {}
     for method, group in by_method.items():
-        varying = [f for f in LABEL_FIELDS if len({json.dumps(g["config"].get(f), sort_keys=True) for g in group}) > 1]
+        fields = dict.fromkeys(f for g in group for f in g["config"] if f not in NOT_LABEL_FIELDS)
+        varying = [f for f in fields if len({json.dumps(g["config"].get(f), sort_keys=True) for g in group}) > 1]
         for r in group:
             suffix = " ".join(f"{f}={_short(r['config'].get(f))}" for f in varying)
             labels[r["run_id"]] = f"{method} {suffix}".strip()
