@@ -120,28 +120,31 @@ class MemoryRows:
         self.videos = videos
         self.formatter = LeRobotTorchFormatter(features=reader.hf_dataset.features)
         table = reader.hf_dataset.select_columns(columns).with_format("arrow")[:]
-        # the stored dtypes (uint16 depth stays 2 bytes), images as PIL: what LeRobot's formatter tensorizes per row
-        self.columns = self.formatter.python_features_decoder.decode_batch(NumpyArrowExtractor().extract_batch(table))
-        self.decoded = {key: [None] * len(table) for key in videos}
-        episodes, timestamps = self.columns["episode_index"], self.columns["timestamp"]
+        decoded = self.formatter.python_features_decoder.decode_batch(NumpyArrowExtractor().extract_batch(table))
+        # numeric columns tensorized whole by LeRobot's formatter rules (floats -> float32, integers -> int64);
+        # anything else (images as PIL) kept as decoded and tensorized per sample, as the formatter does per row
+        self.tensors = {k: self.formatter._tensorize(v) for k, v in decoded.items() if is_numeric(v)}
+        self.objects = {k: v for k, v in decoded.items() if not is_numeric(v)}
+        episodes, timestamps = decoded["episode_index"], decoded["timestamp"]
+        per_row: dict[str, list] = {key: [None] * len(table) for key in videos}
         for ep_idx in np.unique(episodes).tolist():
             rels = np.flatnonzero(episodes == ep_idx)
             query = {key: timestamps[rels].tolist() for key in videos}
             for key, frames in reader._query_videos(query, ep_idx).items():
                 frames = frames.reshape(len(rels), *frames.shape[-3:])  # one-frame episodes come back squeezed
                 for rel, frame in zip(rels.tolist(), frames, strict=True):
-                    self.decoded[key][rel] = frame
-        self.frames_of = {key: torch.stack(frames) for key, frames in self.decoded.items()}
-        del self.decoded
+                    per_row[key][rel] = frame
+        self.frames_of = {key: torch.stack(frames) for key, frames in per_row.items()}
 
     def row(self, rel: int) -> dict:
-        return {key: self.formatter._recursive_tensorize(column[rel]) for key, column in self.columns.items()}
+        item = {key: column[rel].clone() for key, column in self.tensors.items()}
+        item.update({key: self.formatter._recursive_tensorize(column[rel]) for key, column in self.objects.items()})
+        return item
 
     def stack(self, key: str, rels: list[int]) -> torch.Tensor:
-        column = self.columns[key]
-        if isinstance(column, np.ndarray) and column.dtype.kind in "iuf":  # the rows at once, same dtype rules
-            return self.formatter._tensorize(column[np.asarray(rels)])
-        return torch.stack([self.formatter._recursive_tensorize(column[rel]) for rel in rels])
+        if key in self.tensors:
+            return self.tensors[key].index_select(0, torch.tensor(rels))
+        return torch.stack([self.formatter._recursive_tensorize(self.objects[key][rel]) for rel in rels])
 
     def frames(self, ep_idx: int, rels_by_video: dict[str, list[int]]) -> dict[str, torch.Tensor]:
         out = {}
@@ -151,6 +154,10 @@ class MemoryRows:
             else:
                 out[key] = self.frames_of[key].index_select(0, torch.tensor(rels))
         return out
+
+
+def is_numeric(column) -> bool:
+    return isinstance(column, np.ndarray) and column.dtype.kind in "iuf"
 
 
 def estimated_bytes(reader: DatasetReader, columns: list[str], videos: list[str]) -> int:
@@ -163,9 +170,9 @@ def estimated_bytes(reader: DatasetReader, columns: list[str], videos: list[str]
             itemsize = 1 if reader._return_uint8 and key not in reader._meta.depth_keys else 4
         elif dtype == "image":
             itemsize = 1
-        else:
+        else:  # served as LeRobot's formatter serves them: floats as float32, integers as int64
             try:
-                itemsize = np.dtype(dtype).itemsize
+                itemsize = 4 if np.dtype(dtype).kind == "f" else 8
             except TypeError:  # strings: a pointer's worth per value
                 itemsize = 8
         per_row += int(np.prod(features[key]["shape"])) * itemsize
