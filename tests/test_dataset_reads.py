@@ -122,6 +122,17 @@ def test_spaces_without_colour_never_decode_video(dataset, monkeypatch, obs_spac
     assert VIDEO not in served[0] and len([served[i] for i in range(len(served))]) == 45
 
 
+def test_spawned_loader_workers_serve_the_same_batches(dataset, monkeypatch):
+    """lerobot-train starts DataLoader workers with spawn: they import the plugin when they unpickle the dataset
+    and serve what the main process serves."""
+    served = open_dataset(dataset, make_config(ObsACTConfig, "rgb", None), "memory", monkeypatch)
+    loader = torch.utils.data.DataLoader(served, batch_size=4, num_workers=1, multiprocessing_context="spawn")
+    batch = next(iter(loader))
+    expected = torch.utils.data.default_collate([served[i] for i in range(4)])
+    assert batch.keys() == expected.keys() and "observation.depth.base_camera" not in batch
+    assert all(torch.equal(batch[k], expected[k]) for k in batch if isinstance(batch[k], torch.Tensor))
+
+
 def test_over_the_memory_budget_the_read_keys_stream(dataset, monkeypatch, caplog):
     config = make_config(ObsDiffusionConfig, "pointcloud", "dp3")
     monkeypatch.setenv(dataset_reads.MEMORY_ENV, "0.01")
