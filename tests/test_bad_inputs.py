@@ -160,6 +160,17 @@ def _grid(root: Path, text: str) -> list[str]:
     return ["run", str(root / "g.yaml"), "--out", str(root / "out"), "--dry-run"]
 
 
+def grid_override_against_its_encoder_axis(root: Path) -> list[str]:
+    """Used to train PointNet while the results and report said dp3."""
+    text = "tasks: [PushCube-v1]\nobs_spaces: [pointcloud]\nencoders: {pointcloud: [dp3]}\nsteps: 5\n"
+    return _grid(root, text + "policy_overrides: {encoder: pointnet}\n")
+
+
+def grid_variant_against_its_learning_rates(root: Path) -> list[str]:
+    """Used to be dropped (the learning-rate axis comes later on the command line) while the run id carried it."""
+    return _grid(root, "tasks: [PushCube-v1]\nobs_spaces: [rgb]\nsteps: 5\nvariants: [{}, {optimizer_lr: 0.5}]\n")
+
+
 def grid_with_a_duplicated_key(root: Path) -> list[str]:
     return _grid(root, "tasks: [PushCube-v1]\nobs_spaces: [rgb]\nsteps: 5\nsteps: 50\n")
 
@@ -318,6 +329,8 @@ ROWS = [
     (report_into_a_dataset, ["--out", "is inside the LeRobot dataset", "write outputs outside datasets"]),
     (view_ply_over_an_existing_file, ["--ply", "cloud.ply already exists; add --overwrite"]),
     (grid_with_a_duplicated_key, ["'steps' is given twice (lines 3 and 4)"]),
+    (grid_override_against_its_encoder_axis, ["policy_overrides sets --policy.encoder", "through encoders"]),
+    (grid_variant_against_its_learning_rates, ["variants sets --policy.optimizer_lr", "through learning_rates"]),
     (grid_with_a_duplicated_seed, ["seeds lists 1 more than once"]),
     (grid_below_the_smallest_frame, ["image_size must be a whole number >= 32; got 16"]),
     (grid_with_a_task_it_cannot_record, ["TurnFaucet-v1 has no scripted expert", "obsbench import-h5", "assets"]),

@@ -56,6 +56,18 @@ RLBENCH_CONTROL_MODE = "ee_pose_planning"  # RLBench's EndEffectorPoseViaPlannin
 CLIP_GOAL = "clip_vit_b16"  # the language goal's encoder, as RLBench runs record it
 
 
+# --policy.* fields a grid sets through its own axes and options: an override of one would train another value
+# than the run's id and results record
+AXIS_FIELDS = {
+    "type": "policies",
+    "obs_space": "obs_spaces",
+    "encoder": "encoders",
+    "optimizer_lr": "learning_rates",
+    "cameras": "cameras",
+    "device": "`obsbench run --device`",
+}
+
+
 class GridError(ObsBenchError, ValueError):
     """A grid file names something that does not exist or does not fit together."""
 
@@ -485,6 +497,14 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
         )
     if not grid.variants or not all(isinstance(v, dict) for v in grid.variants):
         raise GridError(f"{name}: variants is a list of mappings of --policy.* fields, e.g. [{{}}, {{sampling: pre}}]")
+    for where, fields in (("policy_overrides", grid.policy_overrides), *(("variants", v) for v in grid.variants)):
+        clash = sorted(set(fields) & set(AXIS_FIELDS))
+        if clash:
+            field_name = clash[0]
+            raise GridError(
+                f"{name}: {where} sets --policy.{field_name}, which the grid sets through {AXIS_FIELDS[field_name]}; "
+                f"list the value there instead (the run would train one thing while its results say another)"
+            )
     check_policy_configs(grid, name)
     return grid
 
