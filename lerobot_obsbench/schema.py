@@ -180,7 +180,7 @@ def cameras_in(features: Mapping[str, object]) -> list[str]:
 # camera, K, cam2world).
 STOCK_DEPTH_SUFFIX = "_depth"
 ATTACH_CALIBRATION_HINT = (
-    "attach the camera's calibration to the dataset first: obsbench attach-calibration DATASET --camera {cam} "
+    "attach the camera's calibration to the dataset first: obsbench attach-calibration --root DATASET --camera {cam} "
     "(--from-recording FILE.bag | --serial SERIAL | --from-json FILE) --cam2world FILE "
     "(docs/real-robot.md: datasets recorded by stock lerobot-record)"
 )

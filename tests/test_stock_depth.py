@@ -134,7 +134,7 @@ def test_without_calibration_the_error_names_the_command(stock_dataset, tmp_path
     root = tmp_path / "uncalibrated"
     shutil.copytree(stock_dataset, root)
     (root / "meta" / "obsbench_cameras.json").unlink(missing_ok=True)
-    with pytest.raises(SchemaError, match="obsbench attach-calibration DATASET --camera front"):
+    with pytest.raises(SchemaError, match="obsbench attach-calibration --root DATASET --camera front"):
         training_setup("obs_act", "pointcloud", root, named="act_pcd", workspace=WORKSPACE)
     # the colour stream alone still trains rgb (the depth map is not taken for a colour camera)
     policy, *_ = training_setup("obs_act", "rgb", root, named="act_rgb", encoder="resnet18")
@@ -148,6 +148,30 @@ def test_validate_passes_a_calibrated_dataset(calibrated, capsys):
     assert main(["validate", "--root", str(calibrated)]) == 0
     out = capsys.readouterr().out
     assert "ok      pointcloud" in out and "LeRobot's own depth recording" in out
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("color_size", [480, 640], "color_size [480, 640] is not the dataset's observation.images.front"),
+        ("depth_intrinsics", [[600, 0, 320], [0, 600, 240], [0, 0, 1]], "depth_intrinsics (fx 600, fy 600, princip"),
+    ],
+)
+def test_validate_fails_a_calibration_that_does_not_fit_the_frames(calibrated, tmp_path, capsys, field, value, message):
+    """A calibration edited or attached for another stream size used to pass while validate said it checked
+    every frame's intrinsics."""
+    import shutil
+
+    from lerobot_obsbench.camera_calibration import calibration_path
+
+    root = tmp_path / "copy"
+    shutil.copytree(calibrated, root)
+    stored = json.loads(calibration_path(root).read_text())
+    stored["cameras"]["front"][field] = value
+    calibration_path(root).write_text(json.dumps(stored))
+    assert main(["validate", "--root", str(root)]) == 1
+    out = capsys.readouterr().out
+    assert message in out and "FAILED  pointcloud" in out and "ok      rgb" in out
 
 
 def test_attach_from_a_realsense_recording(stock_dataset, tmp_path):

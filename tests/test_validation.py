@@ -66,8 +66,16 @@ def test_mostly_empty_episode_fails_the_depth_spaces(synthetic_module, tmp_path_
 @pytest.mark.parametrize(
     "name,change,message",
     [
-        ("nan_K", lambda f: {K: np.full((3, 3), np.nan, np.float32)}, "non-finite intrinsics or fx, fy <= 0"),
-        ("zero_focal", lambda f: {K: f[K] * np.diag([0, 1, 1]).astype(np.float32)}, "fx, fy <= 0"),
+        ("nan_K", lambda f: {K: np.full((3, 3), np.nan, np.float32)}, "cannot belong to the 32x32 frames"),
+        ("zero_focal", lambda f: {K: f[K] * np.diag([0, 1, 1]).astype(np.float32)}, "(e.g. fx 0, fy"),
+        # a per-frame K scaled x4 (the frames were downsampled, K was not)
+        ("scaled_K", lambda f: {K: np.diag([4, 4, 1]).astype(np.float32) @ f[K]}, "scale fx, fy, cx, cy with the"),
+        # a 640x480 camera's K stored beside 32x32 frames
+        (
+            "other_resolution",
+            lambda f: {K: np.array([[600, 0, 320], [0, 600, 240], [0, 0, 1]], np.float32)},
+            "principal point (320, 240)",
+        ),
         (
             "scaled_pose",
             lambda f: {POSE: f[POSE] @ np.diag([1.05, 1.05, 1.05, 1]).astype(np.float32)},

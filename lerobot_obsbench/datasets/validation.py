@@ -27,6 +27,7 @@ import torch
 from lerobot_obsbench.camera_calibration import calibration_path, read_calibration
 from lerobot_obsbench.geometry import rigidity_error
 from lerobot_obsbench.schema import (
+    ATTACH_CALIBRATION_HINT,
     CAM2WORLD_PREFIX,
     DEPTH_PREFIX,
     IMAGE_PREFIX,
@@ -42,12 +43,18 @@ from lerobot_obsbench.schema import (
     image_key,
     intrinsics_key,
     stock_depth_cameras,
+    stock_depth_key,
     validate_features,
 )
 from lerobot_obsbench.spaces import MAX_EMPTY_FRACTION, RIGID_TOLERANCE
 
 # Median valid depth outside this range (millimetres) means the unit is wrong (metres, or 0.1 mm ticks).
 DEPTH_MEDIAN_RANGE_MM = (20, 20_000)
+# horizontal and vertical fields of view a camera's K may give at its frame size (degrees)
+FIELD_OF_VIEW_DEG = (5, 170)
+# where in the frame (fractions of its width / height) a principal point may lie: near the centre for any lens,
+# off it for a crop, never at the border
+PRINCIPAL_POINT_BAND = (0.05, 0.95)
 INTEGER_DTYPES = ("uint16", "uint32", "int32", "int64")
 
 
@@ -100,7 +107,7 @@ def scan_dataset(root: Path, features: dict, cameras: list[str], progress: bool 
     data = {key: np.concatenate(parts) for key, parts in gathered.items()}
     for cam, scan in scans.items():
         _check_depth(cam, features, data, episodes, scan)
-        _check_intrinsics(cam, data, episodes, scan)
+        _check_intrinsics(cam, features, data, episodes, scan)
         _check_cam2world(cam, data, episodes, scan)
         _check_sizes(cam, features, scan)
     return scans
@@ -156,17 +163,72 @@ def _check_depth(cam: str, features: dict, data: dict, episodes: np.ndarray, sca
             scan.notes.append(f"{summary} (training gives such frames the empty-cloud point)")
 
 
-def _check_intrinsics(cam: str, data: dict, episodes: np.ndarray, scan: CameraScan) -> None:
+def intrinsics_off(K: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Per K of (N, 3, 3): whether it cannot be a camera of `size` = (height, width) pixels: non-finite, fx or
+    fy <= 0, the principal point outside PRINCIPAL_POINT_BAND of the image (a K of another resolution, or scaled),
+    or a field of view outside FIELD_OF_VIEW_DEG."""
+    height, width = size
+    K = np.asarray(K, dtype=np.float64).reshape(-1, 3, 3)
+    finite = np.isfinite(K).all(axis=(1, 2))
+    fx, fy, cx, cy = (np.where(finite, K[:, i, j], np.nan) for i, j in ((0, 0), (1, 1), (0, 2), (1, 2)))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        fov = np.degrees(2 * np.arctan(np.array([width / (2 * fx), height / (2 * fy)])))
+        low, high = FIELD_OF_VIEW_DEG
+        low_pp, high_pp = PRINCIPAL_POINT_BAND
+        ok = (fx > 0) & (fy > 0)
+        ok &= (cx >= low_pp * width) & (cx <= high_pp * width) & (cy >= low_pp * height) & (cy <= high_pp * height)
+        ok &= ((fov >= low) & (fov <= high)).all(axis=0)
+    return ~(finite & ok)
+
+
+def _k_text(K: np.ndarray) -> str:
+    return f"fx {K[0, 0]:.4g}, fy {K[1, 1]:.4g}, principal point ({K[0, 2]:.4g}, {K[1, 2]:.4g})"
+
+
+def _check_intrinsics(cam: str, features: dict, data: dict, episodes: np.ndarray, scan: CameraScan) -> None:
     key = intrinsics_key(cam)
     if key not in data:
         return
-    K = data[key]
-    bad = ~np.isfinite(K).all(axis=(1, 2)) | ~(K[:, 0, 0] > 0) | ~(K[:, 1, 1] > 0)
+    sized = next((k for k in (depth_key(cam), image_key(cam)) if k in features), None)
+    size = frame_size(sized, features[sized]) if sized else (np.inf, np.inf)
+    bad = intrinsics_off(data[key], size)
     if bad.any():
+        first = data[key][np.flatnonzero(bad)[0]]
         scan.problems[INTRINSICS_PREFIX].append(
-            f"{key}: {int(bad.sum())} frames have non-finite intrinsics or fx, fy <= 0, in "
-            f"{_episodes(bad, episodes)}; fix the recorded camera K"
+            f"{key}: {int(bad.sum())} frames have intrinsics that cannot belong to the {size[1]}x{size[0]} frames "
+            f"(e.g. {_k_text(first)}: a principal point at or outside the image's border, fx/fy <= 0, a field of "
+            f"view outside {FIELD_OF_VIEW_DEG[0]}-{FIELD_OF_VIEW_DEG[1]} deg, or not finite), in "
+            f"{_episodes(bad, episodes)}; "
+            "record the K of the stream at the size it was stored (scale fx, fy, cx, cy with the image)"
         )
+
+
+def calibration_problems(cam: str, features: dict, calibration: dict) -> list[str]:
+    """What in a stock-depth camera's attached calibration cannot fit the dataset's recorded frames."""
+    problems = []
+    streams = (
+        ("color", image_key(cam)),
+        ("depth", stock_depth_key(cam)),
+    )
+    for stream, key in streams:
+        if key not in features:
+            continue
+        recorded = tuple(frame_size(key, features[key]))
+        given = tuple(int(v) for v in calibration[f"{stream}_size"])
+        K = np.asarray(calibration[f"{stream}_intrinsics"], dtype=np.float64)
+        if given != recorded:
+            problems.append(
+                f"camera {cam}'s attached calibration: {stream}_size {list(given)} is not the dataset's {key} "
+                f"({recorded[0]}x{recorded[1]} as height x width); attach the calibration of the streams at the "
+                f"size they were recorded: {ATTACH_CALIBRATION_HINT.format(cam=cam)}"
+            )
+        elif intrinsics_off(K, recorded).any():
+            problems.append(
+                f"camera {cam}'s attached calibration: {stream}_intrinsics ({_k_text(K)}) cannot belong to the "
+                f"{recorded[1]}x{recorded[0]} {stream} frames (principal point outside, or field of view outside "
+                f"{FIELD_OF_VIEW_DEG[0]}-{FIELD_OF_VIEW_DEG[1]} deg); attach the K of that stream at that size"
+            )
+    return problems
 
 
 def _check_cam2world(cam: str, data: dict, episodes: np.ndarray, scan: CameraScan) -> None:
@@ -252,6 +314,10 @@ def validate_dataset(
         used = {c for space in spaces for c in _used(features, space, cameras, calibration)}
         scanned = sorted(used - set(stock))
         scans = scan_dataset(Path(root), features, scanned, progress=progress) if scanned else {}
+        for cam in stock:  # their K and sizes come from the attached calibration, not the frames
+            scans.setdefault(cam, CameraScan()).problems[DEPTH_PREFIX] += calibration_problems(
+                cam, features, calibration[cam]
+            )
     failures = 0
     for cam in stock:
         echo(f"note    {cam}: LeRobot's own depth recording, registered to colour with {calibration_path(root)}")
