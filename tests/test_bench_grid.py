@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+import yaml
 
 from lerobot_obsbench.bench.grid import EvalSpec, GridError, RunSpec, load_grid, parse_grid, preset_grids
 from lerobot_obsbench.bench.results import append_result
@@ -183,9 +184,12 @@ def test_dry_run_counts_steps_and_samples_in_the_papers_units(capsys):
     assert "one training seed" not in text  # paper-main trains two seeds per learning rate
 
 
-def test_dry_run_warns_that_one_training_seed_cannot_show_training_variance(capsys):
-    assert main(["run", "quick", "--dry-run", "--out", "/nonexistent/out"]) == 0
+def test_dry_run_warns_that_one_training_seed_cannot_show_training_variance(tmp_path, capsys):
+    (tmp_path / "one_seed.yaml").write_text(yaml.safe_dump({**BASE, "seeds": [1000]}))
+    assert main(["run", str(tmp_path / "one_seed.yaml"), "--dry-run", "--out", str(tmp_path / "out")]) == 0
     assert "note: one training seed (1000)" in capsys.readouterr().out
+    assert main(["run", "quick", "--dry-run", "--out", "/nonexistent/out"]) == 0  # the main job trains three
+    assert "note: one training seed" not in capsys.readouterr().out
 
 
 def test_training_identity_leaves_out_evaluation_and_checkpointing():
