@@ -94,6 +94,12 @@ def resolve_delta_timestamps(cfg, ds_meta):
     return PolicyQuery(delta_timestamps, frozenset(declare(ds_meta)))
 
 
+def every_feature(delta_timestamps: dict | None) -> dict | None:
+    """The same query without the policy's reads: a dataset opened with it serves every feature, for code that
+    reads more than the policy does (the held-out diagnostics read the simulator's object poses)."""
+    return dict(delta_timestamps) if delta_timestamps else None
+
+
 class StreamedRows:
     """The read keys of each sample, streamed from the dataset's files as LeRobot does, without the others."""
 

@@ -94,15 +94,16 @@ def held_out_diagnostics(checkpoint: str | Path, dataset: str | Path, episodes: 
     from lerobot.datasets.factory import resolve_delta_timestamps
     from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
 
+    from lerobot_obsbench.dataset_reads import every_feature
     from lerobot_obsbench.encoders.point_tokenizer import FPS_START
     from lerobot_obsbench.policies.loading import load_policy
 
     policy, pre, _ = load_policy(checkpoint, device)
     config = policy.config
     meta = LeRobotDatasetMetadata("local/obsbench", root=dataset)
-    data = LeRobotDataset(
-        "local/obsbench", root=dataset, episodes=episodes, delta_timestamps=resolve_delta_timestamps(config, meta)
-    )
+    # every feature, not only the policy's: the diagnostics also read the object poses, K and cam2world
+    delta_timestamps = every_feature(resolve_delta_timestamps(config, meta))
+    data = LeRobotDataset("local/obsbench", root=dataset, episodes=episodes, delta_timestamps=delta_timestamps)
     errors, shares, pixels = [], [], {}
     has_objects = bool(task.objects) and PRIVILEGED_STATE_KEY in meta.features
     adapter = policy.observation_encoder().adapter  # in eval mode, as load_policy returns the policy
