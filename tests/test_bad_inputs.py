@@ -171,6 +171,40 @@ def grid_variant_against_its_learning_rates(root: Path) -> list[str]:
     return _grid(root, "tasks: [PushCube-v1]\nobs_spaces: [rgb]\nsteps: 5\nvariants: [{}, {optimizer_lr: 0.5}]\n")
 
 
+def grid_with_held_out_demos_in_words(root: Path) -> list[str]:
+    """Used to pass the checks and fail after the demonstrations were recorded."""
+    return _grid(root, "tasks: [PushCube-v1]\nobs_spaces: [rgb]\nsteps: 5\nheld_out_demos: ten\n")
+
+
+def grid_with_negative_held_out_demos(root: Path) -> list[str]:
+    return _grid(root, "tasks: [PushCube-v1]\nobs_spaces: [rgb]\nsteps: 5\nheld_out_demos: -5\n")
+
+
+def _view(root: Path, *options: str) -> list[str]:
+    return ["view", "--root", str(root / "dataset"), *options]
+
+
+def view_negative_frame(root: Path) -> list[str]:
+    return _view(root, "--frame", "-1")
+
+
+def view_zero_voxel(root: Path) -> list[str]:
+    return _view(root, "--voxel-size", "0")
+
+
+def view_zero_downsample(root: Path) -> list[str]:
+    return ["view", "--playback", str(root / "a.bag"), "--downsample", "0"]
+
+
+def view_inverted_workspace(root: Path) -> list[str]:
+    """Used to reach the dataset and end in a traceback."""
+    return _view(root, "--workspace", "0.5", "-0.5", "-0.3", "0.3", "0", "0.3")
+
+
+def refine_cameras_inverted_workspace(root: Path) -> list[str]:
+    return ["refine-cameras", "--playback", "a.bag", "b.bag", "--workspace", "0", "0", "-1", "1", "0", "1"]
+
+
 def grid_with_a_duplicated_key(root: Path) -> list[str]:
     return _grid(root, "tasks: [PushCube-v1]\nobs_spaces: [rgb]\nsteps: 5\nsteps: 50\n")
 
@@ -329,6 +363,13 @@ ROWS = [
     (report_into_a_dataset, ["--out", "is inside the LeRobot dataset", "write outputs outside datasets"]),
     (view_ply_over_an_existing_file, ["--ply", "cloud.ply already exists; add --overwrite"]),
     (grid_with_a_duplicated_key, ["'steps' is given twice (lines 3 and 4)"]),
+    (grid_with_held_out_demos_in_words, ["held_out_demos", "whole number"]),
+    (grid_with_negative_held_out_demos, ["held_out_demos", ">= 0"]),
+    (view_negative_frame, ["--frame", "must be >= 0, got -1"]),
+    (view_zero_voxel, ["--voxel-size", "must be a finite number > 0, got 0"]),
+    (view_zero_downsample, ["--downsample", "must be >= 1, got 0"]),
+    (view_inverted_workspace, ["--workspace 0.5 -0.5 -0.3 0.3 0 0.3", "each min below its max"]),
+    (refine_cameras_inverted_workspace, ["--workspace 0 0 -1 1 0 1", "each min below its max"]),
     (grid_override_against_its_encoder_axis, ["policy_overrides sets --policy.encoder", "through encoders"]),
     (grid_variant_against_its_learning_rates, ["variants sets --policy.optimizer_lr", "through learning_rates"]),
     (grid_with_a_duplicated_seed, ["seeds lists 1 more than once"]),

@@ -375,6 +375,7 @@ NUMERIC_FIELDS = {
     "eval_episodes": (True, 1, True),
     "eval_batch_size": (True, 1, True),
     "episode_length": (True, 1, True),
+    "held_out_demos": (True, 0, True),
 }
 TEXT_LIST_FIELDS = ("cameras", "perturbations")
 

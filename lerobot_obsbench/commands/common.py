@@ -13,6 +13,7 @@ them, while the command's own options stay argparse ones.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from types import ModuleType
 
@@ -32,6 +33,40 @@ def positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
     return value
+
+
+def non_negative_int(text: str) -> int:
+    """argparse type: a whole number >= 0 (an index)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0 (a size, a distance, an angle)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
+    return value
+
+
+def crop_box_argument(workspace: list[float] | None, flag: str = "--workspace") -> None:
+    """Refuse an inverted, empty or non-finite crop box given on the command line."""
+    if workspace is None:
+        return
+    lows, highs = workspace[0::2], workspace[1::2]
+    if not all(math.isfinite(v) for v in workspace) or any(lo >= hi for lo, hi in zip(lows, highs, strict=True)):
+        raise UsageError(
+            f"{flag} {' '.join(f'{v:g}' for v in workspace)}: give xmin xmax ymin ymax zmin zmax in metres, each "
+            "min below its max"
+        )
 
 
 def frame_size(text: str) -> int:

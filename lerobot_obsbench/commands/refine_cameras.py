@@ -22,17 +22,21 @@ EXAMPLE = """obsbench refine-cameras --serial 123456789 987654321 --preset real-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--serial", nargs="*", default=[], help="live cameras; the first is the reference")
     p.add_argument("--playback", nargs="*", default=[], help="recorded .bag files instead (the first: reference)")
-    p.add_argument("--width", type=int, default=640)
-    p.add_argument("--height", type=int, default=480)
-    p.add_argument("--fps", type=int, default=30)
-    p.add_argument("--downsample", type=int, default=2)
+    p.add_argument("--width", type=common.positive_int, default=640)
+    p.add_argument("--height", type=common.positive_int, default=480)
+    p.add_argument("--fps", type=common.positive_int, default=30)
+    p.add_argument("--downsample", type=common.positive_int, default=2)
     p.add_argument("--extrinsics-dir", default=None, help="where calibrate-cameras saved them (default: LeRobot's)")
     p.add_argument("--workspace", type=float, nargs=6, default=None, help="the region aligned (default: the preset's)")
     p.add_argument("--preset", default=None, help="take the region from this preset (e.g. real-two-arms)")
-    p.add_argument("--max-mm", type=float, default=20.0, help="refuse a correction moving a camera further")
-    p.add_argument("--max-deg", type=float, default=2.0, help="refuse a correction turning a camera further")
+    p.add_argument(
+        "--max-mm", type=common.positive_float, default=20.0, help="refuse a correction moving a camera further"
+    )
+    p.add_argument(
+        "--max-deg", type=common.positive_float, default=2.0, help="refuse a correction turning a camera further"
+    )
     p.add_argument("--min-overlap", type=float, default=0.3, help="refuse when less of a cloud meets the reference")
-    p.add_argument("--voxel-size", type=float, default=0.005, help="of the --ply cloud")
+    p.add_argument("--voxel-size", type=common.positive_float, default=0.005, help="of the --ply cloud")
     p.add_argument("--ply", type=Path, default=None, help="write the fused cloud after the refinement as .ply")
     p.add_argument("--dry-run", action="store_true", help="report the corrections; save nothing")
 
@@ -47,6 +51,7 @@ def run(args: argparse.Namespace) -> int:
     from lerobot_obsbench.robots.fusion import align_clouds, write_ply
     from lerobot_obsbench.schema import cam2world_key
 
+    common.crop_box_argument(args.workspace)
     configs = live_camera_configs(args.serial, args.playback, args.width, args.height, args.fps, args.downsample)
     if len(configs) < 2:
         raise UsageError("give two or more cameras; the first is the reference")

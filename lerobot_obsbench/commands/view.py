@@ -21,18 +21,18 @@ EXAMPLE = """obsbench view --root data/pickcube --frame 0 --out view.rrd"""
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--root", default=None, help="a LeRobotDataset (simulated or real)")
     p.add_argument("--repo-id", default="local/dataset")
-    p.add_argument("--frame", type=int, default=0, help="global frame index in the dataset")
+    p.add_argument("--frame", type=common.non_negative_int, default=0, help="global frame index in the dataset")
     p.add_argument("--serial", nargs="*", default=[], help="live RealSense cameras instead of a dataset")
     p.add_argument("--playback", nargs="*", default=[], help="recorded .bag files instead of a dataset")
-    p.add_argument("--width", type=int, default=640)
-    p.add_argument("--height", type=int, default=480)
-    p.add_argument("--fps", type=int, default=30)
-    p.add_argument("--downsample", type=int, default=2)
+    p.add_argument("--width", type=common.positive_int, default=640)
+    p.add_argument("--height", type=common.positive_int, default=480)
+    p.add_argument("--fps", type=common.positive_int, default=30)
+    p.add_argument("--downsample", type=common.positive_int, default=2)
     p.add_argument("--extrinsics-dir", default=None)
     p.add_argument("--cameras", nargs="*", default=[], help="cameras to fuse (default: all with depth)")
     p.add_argument("--workspace", type=float, nargs=6, default=None, help="crop box (default: the preset's)")
     p.add_argument("--preset", default=None, help="take the crop box from this preset (e.g. real-one-arm)")
-    p.add_argument("--voxel-size", type=float, default=0.005)
+    p.add_argument("--voxel-size", type=common.positive_float, default=0.005)
     p.add_argument("--out", type=Path, default=None, help="save an .rrd file (default without a display)")
     p.add_argument("--ply", type=Path, default=None, help="also write the policy's fused cloud as .ply (Open3D)")
     p.add_argument("--overwrite", action="store_true", help="replace existing --out / --ply files")
@@ -45,6 +45,7 @@ def run(args: argparse.Namespace) -> int:
     for path, flag in ((args.out, "--out"), (args.ply, "--ply")):  # before the dataset or the cameras are opened
         if path:
             check_output_file(path, flag, overwrite=args.overwrite, inputs=inputs)
+    common.crop_box_argument(args.workspace)
     workspace = crop_box(args.workspace, args.preset)
     if args.root:
         frame = dataset_frame(args.root, args.frame, args.repo_id)
