@@ -57,6 +57,20 @@ def test_preset_flags_parse_back(capsys):
         preset_args("gpu", "obs_act", "rgb")
 
 
+def test_preset_takes_the_named_policy_types(capsys):
+    """README's own `act_pcd` was refused: a named type is its base type, space and encoder."""
+    for named, spelled in (
+        (["--policy", "act_pcd"], ["--policy", "obs_act", "--obs-space", "pointcloud", "--encoder", "pointnet"]),
+        (["--policy", "dp_rgb"], ["--policy", "obs_diffusion", "--obs-space", "rgb", "--encoder", "resnet18"]),
+    ):
+        assert main(["preset", "--preset", "cpu", *named]) == 0
+        out = capsys.readouterr().out
+        assert main(["preset", "--preset", "cpu", *spelled]) == 0
+        assert out == capsys.readouterr().out and out.strip()
+    assert main(["preset", "--policy", "act_pcd", "--obs-space", "rgb"]) == 2
+    assert "act_pcd fixes the observation space to pointcloud" in capsys.readouterr().err
+
+
 def test_presets_set_only_what_the_space_uses():
     assert "num_tokens" not in preset_overrides("cpu", "obs_act", "rgb")  # a point field would be refused for rgb
     assert preset_overrides("cpu", "obs_act", "pointcloud")["num_tokens"] == 128

@@ -6,6 +6,7 @@ import argparse
 import sys
 
 from lerobot_obsbench.commands import common
+from lerobot_obsbench.errors import UsageError
 from lerobot_obsbench.schema import OBS_SPACES, POLICY_TYPES
 
 NAME = "preset"
@@ -14,18 +15,28 @@ EXAMPLE = """obsbench preset --preset real-one-arm --policy obs_act --obs-space 
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from lerobot_obsbench.policies.named import NAMED_POLICIES
     from lerobot_obsbench.presets import PRESETS
 
     p.add_argument("--preset", default="cpu", choices=tuple(PRESETS))
-    p.add_argument("--policy", default=POLICY_TYPES[0], choices=POLICY_TYPES)
-    p.add_argument("--obs-space", default="pointcloud", choices=OBS_SPACES)
+    p.add_argument(
+        "--policy", default=POLICY_TYPES[0], choices=(*POLICY_TYPES, *NAMED_POLICIES), help="policy type or named type"
+    )
+    p.add_argument("--obs-space", default=None, choices=OBS_SPACES, help="default: pointcloud, or the named type's")
     p.add_argument("--encoder", default=None, help="the encoder you train with (default: the preset's for the space)")
 
 
 def run(args: argparse.Namespace) -> int:
+    from lerobot_obsbench.policies.named import NAMED_POLICIES
     from lerobot_obsbench.presets import preset_args
 
-    print(" ".join(preset_args(args.preset, args.policy, args.obs_space, args.encoder)))
+    policy, obs_space, encoder = args.policy, args.obs_space or "pointcloud", args.encoder
+    if args.policy in NAMED_POLICIES:  # act_pcd = obs_act + pointcloud + pointnet
+        policy, obs_space, named_encoder = NAMED_POLICIES[args.policy]
+        if args.obs_space not in (None, obs_space):
+            raise UsageError(f"--policy {args.policy} fixes the observation space to {obs_space}; drop --obs-space")
+        encoder = encoder or named_encoder
+    print(" ".join(preset_args(args.preset, policy, obs_space, encoder)))
     return 0
 
 
