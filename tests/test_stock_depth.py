@@ -209,6 +209,10 @@ def test_attach_from_a_realsense_recording(stock_dataset, tmp_path):
         (["--camera", "side", "--from-json", "{calib}"], "no LeRobot depth feature observation.images.side_depth"),
         (["--camera", "front", "--from-json", "{nopose}"], "the camera pose is missing: --cam2world"),
         (["--camera", "front", "--from-json", "{calib}", "--cam2world", "{missing}"], "--cam2world"),
+        # these ended in tracebacks
+        (["--camera", "front", "--from-json", "{broken}"], "--from-json {broken}: not valid JSON"),
+        (["--camera", "front", "--from-json", "{calib}", "--cam2world", "{broken}"], "--cam2world {broken}: not valid"),
+        (["--camera", "front", "--from-json", "{calib}", "--cam2world", "{words}"], "a 4x4 matrix of numbers"),
     ],
 )
 def test_attach_refuses_bad_input_in_one_line(stock_dataset, tmp_path, capsys, args, message):
@@ -216,7 +220,12 @@ def test_attach_refuses_bad_input_in_one_line(stock_dataset, tmp_path, capsys, a
         "calib": scene.write_calibration_json(tmp_path / "c.json"),
         "nopose": scene.write_calibration_json(tmp_path / "n.json", with_pose=False),
         "missing": tmp_path / "nothing.json",
+        "broken": tmp_path / "broken.json",
+        "words": tmp_path / "words.json",
     }
+    paths["broken"].write_text('{"color_intrinsics": [[1, 0')
+    paths["words"].write_text(json.dumps([["one", 0, 0, 0]] * 4))
+    message = message.format(**paths)
     args = [a.format(**paths) for a in args]
     assert main(["attach-calibration", "--root", str(stock_dataset), *args]) == 2
     err = capsys.readouterr().err

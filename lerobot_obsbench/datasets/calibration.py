@@ -26,11 +26,22 @@ from lerobot_obsbench.schema import (
 )
 
 
+def _read_json(path: Path, what: str):
+    """A JSON file's content, or one SchemaError line naming `what` it is and why it cannot be read."""
+    try:
+        return json.loads(Path(path).read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as err:
+        raise SchemaError(f"{what} {path}: not valid JSON ({err})") from None
+
+
 def _features(root: Path) -> dict:
     info = root / "meta" / "info.json"
     if not info.is_file():
         raise FileNotFoundError(f"{root} is not a LeRobot dataset (no meta/info.json)")
-    return json.loads(info.read_text())["features"]
+    data = _read_json(info, "the dataset's metadata")
+    if not isinstance(data, dict) or not isinstance(data.get("features"), dict):
+        raise SchemaError(f"{info}: no 'features' mapping; is the dataset's metadata complete?")
+    return data["features"]
 
 
 def _size(feature: dict) -> list[int]:
@@ -86,11 +97,15 @@ def read_cam2world(path: str | Path) -> list[list[float]]:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"--cam2world {path}: no such file (`obsbench calibrate-cameras` writes it)")
-    data = json.loads(path.read_text())
+    data = _read_json(path, "--cam2world")
     matrix = data.get("cam2world") if isinstance(data, dict) else data
+    expected = f"--cam2world {path}: expected a 4x4 matrix of numbers or an object with 'cam2world' (4x4)"
     if np.asarray(matrix, dtype=object).shape != (4, 4):
-        raise SchemaError(f"--cam2world {path}: expected a 4x4 matrix or an object with 'cam2world' (4x4)")
-    return [[float(v) for v in row] for row in matrix]
+        raise SchemaError(expected)
+    try:
+        return [[float(v) for v in row] for row in matrix]
+    except (TypeError, ValueError):
+        raise SchemaError(expected) from None
 
 
 def attach_calibration(
@@ -119,7 +134,7 @@ def attach_calibration(
     if from_json is not None:
         if not Path(from_json).is_file():
             raise FileNotFoundError(f"--from-json {from_json}: no such file")
-        values = json.loads(Path(from_json).read_text())
+        values = _read_json(Path(from_json), "--from-json")
         if not isinstance(values, dict):
             raise SchemaError(f"--from-json {from_json}: expected an object of CameraCalibration fields")
         source = f"file {from_json}"
