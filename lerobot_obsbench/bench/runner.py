@@ -41,7 +41,7 @@ DEMO_FRAMES_PER_EPISODE = 30  # for estimates before the demonstrations exist
 # docs/performance.md#the-cost-model; tests/test_bench_grid.py holds the measured ones to their benchmark's JSON.
 TRAIN_SAMPLES_PER_SECOND = {
     ("cpu", "tiny"): {"image": 100.0, "point": 100.0, "none": 200.0},
-    ("cpu", "cpu"): {"image": 125.0, "point": 410.0, "none": 590.0},
+    ("cpu", "cpu"): {"image": 170.0, "point": 360.0, "none": 750.0},
     ("cpu", "paper"): {"image": 2.5, "point": 0.5, "none": 50.0},
     ("cuda", "tiny"): {"image": 1190.0, "point": 960.0, "none": 1450.0},
     ("cuda", "cpu"): {"image": 1190.0, "point": 960.0, "none": 1450.0},
