@@ -24,26 +24,23 @@ from lerobot_obsbench.schema import MIN_IMAGE_SIZE
 NOTHING_HALF_WRITTEN = "nothing is left half-written; run the same command again"
 
 
-def positive_int(text: str) -> int:
-    """argparse type: a whole number >= 1 (checked before anything starts)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
+def whole_number(minimum: int):
+    """argparse type: a whole number >= `minimum` (checked before anything starts)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number >= {minimum}, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
+        return value
+
+    return parse
 
 
-def non_negative_int(text: str) -> int:
-    """argparse type: a whole number >= 0 (an index)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
-    return value
+positive_int = whole_number(1)  # counts, sizes, rates
+non_negative_int = whole_number(0)  # indices
 
 
 def positive_float(text: str) -> float:
