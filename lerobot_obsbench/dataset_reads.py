@@ -11,8 +11,9 @@ the plugin's policies do — gets instead, under stock `lerobot-train`:
    before anything is decoded), the read columns and every frame of the read videos are decoded into memory when
    the dataset is loaded, and each sample is then served from memory. Every served value is the one LeRobot's
    reader returns for that index (same frames, dtypes and shapes: `tests/test_dataset_reads.py`). The cache
-   lives in the training process (DataLoader workers share it by fork) and nothing is written to the dataset; a
-   dataset over the budget is streamed with only the read keys, with one log line saying so.
+   lives in the training process (DataLoader workers, which lerobot-train spawns, each unpickle their own copy)
+   and nothing is written to the dataset; a dataset over the budget is streamed with only the read keys, with
+   one log line saying so.
 
 How the reads reach the reader: lerobot-train builds the dataset before the policy, and the one call that sees
 both the policy config and the dataset is `resolve_delta_timestamps(policy_config, dataset_meta)`, whose result
@@ -196,8 +197,8 @@ def attach_rows(reader: DatasetReader) -> None:
     """Give a loaded, tagged reader its rows: in memory when they fit the budget, else streamed."""
     columns, videos = read_plan(reader)
     reader._obsbench_placement = Placement(reader)
-    needed, budget = estimated_bytes(reader, columns, videos), memory_budget_bytes()
-    if reader_choice() == "memory" and needed <= budget:
+    needed, budget, choice = estimated_bytes(reader, columns, videos), memory_budget_bytes(), reader_choice()
+    if choice == "memory" and needed <= budget:
         start = time.perf_counter()
         reader._obsbench_rows = MemoryRows(reader, columns, videos)
         logger.info(
@@ -206,7 +207,7 @@ def attach_rows(reader: DatasetReader) -> None:
             f"{', '.join(sorted(set(reader._meta.features) - set(columns) - set(videos))) or 'nothing'}"
         )
         return
-    if reader_choice() == "memory":
+    if choice == "memory":
         logger.info(
             f"obsbench: the read keys need ~{needed / 2**20:.0f} MiB, over {MEMORY_ENV}={budget / 2**20:.0f}: "
             "streaming them from the dataset's files instead"

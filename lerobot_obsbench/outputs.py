@@ -34,8 +34,8 @@ def check_output_file(path: Path, flag: str, overwrite: bool = False, inputs: It
 
 def check_output_folder(path: Path, flag: str, inputs: Iterable[Path] = ()) -> None:
     """Refuse, before any work, an output folder `path` (given by `flag`) that is a file, cannot be created or
-    written, or holds one of the command's `inputs` or a LeRobot dataset. What the command writes in it replaces
-    files of the same name (a regenerated report, a camera's new calibration)."""
+    written, is one of the command's `inputs` (or inside one) or lies inside a LeRobot dataset. What the command
+    writes in it replaces files of the same name (a regenerated report, a camera's new calibration)."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise OutputPathError(f"{flag} {path} is a file; give a folder")

@@ -73,7 +73,7 @@ def read_results(path: Path, warn=None) -> list[dict]:
         if problem:
             warn(f"{path}:{number}: results line skipped: {problem}; its evaluation will be redone")
             continue
-        identity = (record["kind"], record["run_id"] if record["kind"] == "train" else record.get("eval_id"))
+        identity = (record["kind"], record["run_id"] if record["kind"] == "train" else record["eval_id"])
         if identity in seen:
             duplicates.append(number)
             continue

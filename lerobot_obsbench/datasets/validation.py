@@ -189,8 +189,8 @@ def _check_intrinsics(cam: str, features: dict, data: dict, episodes: np.ndarray
     key = intrinsics_key(cam)
     if key not in data:
         return
-    sized = next((k for k in (depth_key(cam), image_key(cam)) if k in features), None)
-    size = frame_size(sized, features[sized]) if sized else (np.inf, np.inf)
+    sized = depth_key(cam) if depth_key(cam) in features else image_key(cam)  # a scanned camera has one of them
+    size = frame_size(sized, features[sized])
     bad = intrinsics_off(data[key], size)
     if bad.any():
         first = data[key][np.flatnonzero(bad)[0]]

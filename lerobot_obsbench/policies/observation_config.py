@@ -309,7 +309,7 @@ class ObservationConfig:
     def read_dataset_calibration(self, dataset_meta) -> None:
         """Take the calibration of the dataset's LeRobot-recorded depth cameras from its meta/ folder (once: a
         loaded checkpoint keeps the calibration it was trained with)."""
-        if dataset_meta is None or self.depth_calibration or getattr(dataset_meta, "root", None) is None:
+        if dataset_meta is None or self.depth_calibration:
             return
         self.depth_calibration = dataset_calibration(dataset_meta)
 
