@@ -188,6 +188,24 @@ def view_negative_frame(root: Path) -> list[str]:
     return _view(root, "--frame", "-1")
 
 
+def _small_dataset(root: Path) -> Path:
+    from scripts import make_synthetic_dataset as synthetic
+
+    return synthetic.write_dataset(root / "dataset", episodes=1, frames=3, size=32, seed=0, use_video=False)
+
+
+def view_a_frame_past_the_end(root: Path) -> list[str]:
+    """Used to end in an IndexError traceback."""
+    _small_dataset(root)
+    return _view(root, "--frame", "3", "--out", str(root / "v.rrd"))
+
+
+def view_a_camera_typo(root: Path) -> list[str]:
+    """Used to end in a KeyError deep in the point-cloud adapter."""
+    _small_dataset(root)
+    return _view(root, "--cameras", "base_camerra", "--out", str(root / "v.rrd"))
+
+
 def view_zero_voxel(root: Path) -> list[str]:
     return _view(root, "--voxel-size", "0")
 
@@ -366,6 +384,8 @@ ROWS = [
     (grid_with_held_out_demos_in_words, ["held_out_demos", "whole number"]),
     (grid_with_negative_held_out_demos, ["held_out_demos", ">= 0"]),
     (view_negative_frame, ["--frame", "must be >= 0, got -1"]),
+    (view_a_frame_past_the_end, ["--frame 3 is outside the dataset's 3 frames (0..2)"]),
+    (view_a_camera_typo, ["--cameras base_camerra: not a camera with depth here", "['base_camera']"]),
     (view_zero_voxel, ["--voxel-size", "must be a finite number > 0, got 0"]),
     (view_zero_downsample, ["--downsample", "must be >= 1, got 0"]),
     (view_inverted_workspace, ["--workspace 0.5 -0.5 -0.3 0.3 0 0.3", "each min below its max"]),

@@ -264,3 +264,27 @@ def test_a_checkpoint_keeps_the_calibration_it_was_trained_with(calibrated, tmp_
         torch.testing.assert_close(
             loaded.select_action(loaded_pre(dict(sample))), policy.select_action(pre(dict(sample)))
         )
+
+
+def test_view_shows_a_calibrated_stock_dataset_on_the_scene(calibrated, tmp_path, capsys):
+    """`obsbench view` registers LeRobot's own depth with the attached calibration, as training does: the cloud
+    it writes lands on the scene's surfaces."""
+    import open3d as o3d
+
+    ply = tmp_path / "cloud.ply"
+    args = ["view", "--root", str(calibrated), "--out", str(tmp_path / "v.rrd"), "--ply", str(ply), "--workspace"]
+    assert main([*args, *map(str, WORKSPACE), "--voxel-size", "0.002"]) == 0, capsys.readouterr().err
+    cloud = o3d.io.read_point_cloud(str(ply))
+    points, colours = np.asarray(cloud.points), np.asarray(cloud.colors) * 255
+    assert len(points) > 200
+    distance_mm = scene.scene_distance(points) * 1000
+    assert np.median(distance_mm) <= 2.0, np.percentile(distance_mm, [50, 90])
+    on_sphere = scene.sphere_points(points)
+    assert on_sphere.sum() > 20 and (colours[on_sphere][:, 0] > 150).mean() > 0.9  # the sphere is red
+
+
+def test_view_of_an_uncalibrated_stock_dataset_names_the_command(tmp_path, capsys):
+    fresh = scene.write_stock_dataset(tmp_path / "raw", video=False, episodes=1, frames=2)
+    assert main(["view", "--root", str(fresh), "--out", str(tmp_path / "v.rrd")]) == 2
+    err = capsys.readouterr().err
+    assert "has no calibration" in err and "obsbench attach-calibration --root DATASET --camera front" in err

@@ -16,30 +16,46 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from lerobot_obsbench.camera_calibration import read_calibration
+from lerobot_obsbench.errors import UsageError
 from lerobot_obsbench.schema import (
+    ATTACH_CALIBRATION_HINT,
+    SchemaError,
     cam2world_key,
     cameras_in,
     depth_key,
     image_key,
     intrinsics_key,
+    stock_depth_cameras,
+    stock_depth_key,
 )
-from lerobot_obsbench.spaces import ObservationAdapter
+from lerobot_obsbench.spaces import CalibratedDepth, ObservationAdapter
 
 AXIS_COLOURS = [[230, 40, 40], [40, 200, 40], [40, 80, 230]]
 
 
 def dataset_frame(root: str | Path, index: int, repo_id: str = "local/dataset") -> dict[str, np.ndarray]:
-    """One frame of a LeRobotDataset as schema-keyed numpy arrays (colour HWC uint8)."""
+    """One frame of a LeRobotDataset as schema-keyed numpy arrays (colour HWC uint8). LeRobot's own depth maps
+    come out as the schema's depth, intrinsics and cam2world of each camera whose calibration is attached, as the
+    policies register them (`spaces.CalibratedDepth`); an uncalibrated camera's depth map is left out."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     dataset = LeRobotDataset(repo_id, root=root)
     if not 0 <= index < len(dataset):
-        raise IndexError(f"frame {index} is outside the dataset's {len(dataset)} frames")
-    item = dataset[index]
+        raise UsageError(f"--frame {index} is outside the dataset's {len(dataset)} frames (0..{len(dataset) - 1})")
+    item = {key: value for key, value in dataset[index].items() if isinstance(value, torch.Tensor)}
+    stock = stock_depth_cameras(dataset.meta.features)
+    if stock:
+        calibration = {cam: entry.to_dict() for cam, entry in read_calibration(root).items() if cam in stock}
+        registered = CalibratedDepth(calibration)({key: value[None] for key, value in item.items()})
+        item = {key: value[0] for key, value in registered.items() if key not in map(stock_depth_key, stock)}
+        if not any(key.startswith(depth_key("")) for key in item):
+            raise SchemaError(
+                f"{root}: LeRobot's own depth of camera {stock[0]!r} has no calibration, so it has no points to show; "
+                + ATTACH_CALIBRATION_HINT.format(cam=stock[0])
+            )
     frame = {}
     for key, value in item.items():
-        if not isinstance(value, torch.Tensor):
-            continue
         value = value.numpy()
         if key.startswith(image_key("")) and value.ndim == 3 and value.shape[0] == 3:
             value = (np.clip(value.transpose(1, 2, 0), 0, 1) * 255).round().astype(np.uint8)
@@ -94,9 +110,13 @@ def log_frame(
     write the policy's fused cloud (cropped, voxel-sampled, coloured) there, for other tools."""
     import rerun as rr
 
-    cameras = cameras or [c for c in cameras_in(frame) if depth_key(c) in frame and cam2world_key(c) in frame]
+    with_depth = [c for c in cameras_in(frame) if depth_key(c) in frame and cam2world_key(c) in frame]
+    unknown = sorted(set(cameras or []) - set(with_depth))
+    if unknown:
+        raise UsageError(f"--cameras {' '.join(unknown)}: not a camera with depth here; the frame's are {with_depth}")
+    cameras = cameras or with_depth
     if not cameras:
-        raise ValueError(
+        raise SchemaError(
             "the frame has no camera with depth, intrinsics and cam2world (schema keys observation.depth.<cam>, "
             "observation.intrinsics.<cam>, observation.cam2world.<cam>): nothing to fuse."
         )
