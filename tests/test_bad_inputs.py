@@ -244,6 +244,7 @@ def _results(root: Path, *lines: str) -> list[str]:
     return ["report", str(root / "results.jsonl"), "--out", str(root / "report")]
 
 
+RUN_CONFIG = {"task": "T", "policy": "act", "obs_space": "rgb", "encoder": "resnet18", "seed": 1, "demos": 10}
 TRAIN = json.dumps({"kind": "train", "run_id": "r", "config": {}, "method": "m", "task": "T", "checkpoint": "c"})
 
 
@@ -258,6 +259,25 @@ def report_with_an_impossible_count(root: Path) -> list[str]:
 
 def report_with_a_negative_rate(root: Path) -> list[str]:
     return _results(root, TRAIN, _eval_line(episodes=50, successes=3, success_rate=-3))
+
+
+def report_with_a_config_that_is_not_a_mapping(root: Path) -> list[str]:
+    """Used to end in an AttributeError traceback."""
+    train = json.loads(TRAIN) | {"config": "act/rgb seed 1"}
+    return _results(root, json.dumps(train), _eval_line(episodes=50, successes=3))
+
+
+def report_with_a_training_seed_in_words(root: Path) -> list[str]:
+    """Used to end in a KeyError traceback (the run config has no usable seed)."""
+    train = json.loads(TRAIN) | {"config": {**RUN_CONFIG, "seed": "one"}}
+    return _results(root, json.dumps(train), _eval_line(episodes=50, successes=3))
+
+
+def report_with_per_seed_outcomes_against_the_count(root: Path) -> list[str]:
+    """Used to count 3 successes in the tables and 5 in the camera-moved agreement."""
+    per_seed = {"seeds": list(range(5)), "success": "11111", "length": [9] * 5}
+    train = json.loads(TRAIN) | {"config": RUN_CONFIG}
+    return _results(root, json.dumps(train), _eval_line(episodes=5, successes=3, per_seed=per_seed))
 
 
 def report_with_lines_that_are_not_records(root: Path) -> list[str]:
@@ -397,6 +417,12 @@ ROWS = [
     (grid_with_a_task_it_cannot_record, ["TurnFaucet-v1 has no scripted expert", "obsbench import-h5", "assets"]),
     (report_with_an_impossible_count, ["results.jsonl:2", "successes = 1e+308 is not a whole number in 0..50"]),
     (report_with_a_negative_rate, ["results.jsonl:2", "success_rate = -3 is not a finite number in [0, 1]"]),
+    (report_with_a_config_that_is_not_a_mapping, ["results.jsonl:1", 'config = "act/rgb seed 1" is not a mapping']),
+    (report_with_a_training_seed_in_words, ["results.jsonl:1", 'config.seed = "one" is not a whole number']),
+    (
+        report_with_per_seed_outcomes_against_the_count,
+        ["results.jsonl:2", "per_seed holds 5 successes where successes = 3"],
+    ),
     (report_with_lines_that_are_not_records, ["results.jsonl:1", "null, not a record", "results.jsonl:2"]),
     (rollout_with_a_missing_checkpoint, ["obsbench rollout: error:", "pretrained_model"]),
     (rollout_with_a_bad_value, ["obsbench rollout: error:", "episodes"]),

@@ -15,6 +15,7 @@ import pytest
 import torch
 
 from lerobot_obsbench.cli import main
+from lerobot_obsbench.stats import per_seed
 from tests.helpers import first_batch, training_setup
 from tests.hub_standin import LocalHub
 
@@ -58,6 +59,7 @@ def grid_run(tiny_dataset, tmp_path_factory):
         "policy": "act_pcd",
         "batch_size": 4,
         "demos": 6,
+        "seed": 1000,
     }
     train = {
         "kind": "train",
@@ -83,7 +85,7 @@ def grid_run(tiny_dataset, tmp_path_factory):
             "successes": s,
             "success_rate": round(s / 30, 4),
             "ci95": ci,
-            "per_seed": {"seeds": list(range(30))},
+            "per_seed": per_seed(list(range(30)), [i < s for i in range(30)], [50] * 30),
         }
         for i, (p, s, ci) in enumerate((("none", 10, [0.1923, 0.5122]), ("camera_yaw:10", 8, [0.1418, 0.4445])))
     ]

@@ -31,6 +31,8 @@ REQUIRED = {
     "train": ("run_id", "config", "method", "task", "checkpoint"),
     "eval": ("eval_id", "run_id", "checkpoint", "split", "perturbation", "episodes", "successes"),
 }
+# run-config fields the report places a run by (its table, column and training seed), with their types
+CONFIG_FIELDS = {"task": str, "policy": str, "obs_space": str, "encoder": str, "seed": int, "demos": int}
 # fields of a 0.1 record's config that described its evaluations, not its training
 V1_EVAL_FIELDS = ("eval_episodes", "perturbations")
 
@@ -69,9 +71,10 @@ def read_results(path: Path, warn=None) -> list[dict]:
         if missing:
             warn(f"{path}:{number}: results line without {missing} skipped")
             continue
-        problem = impossible_counts(record) if record["kind"] == "eval" else None
+        problem = impossible_counts(record) if record["kind"] == "eval" else config_problem(record["config"])
         if problem:
-            warn(f"{path}:{number}: results line skipped: {problem}; its evaluation will be redone")
+            redone = "its evaluation" if record["kind"] == "eval" else "its run"
+            warn(f"{path}:{number}: results line skipped: {problem}; {redone} will be redone")
             continue
         identity = (record["kind"], record["run_id"] if record["kind"] == "train" else record["eval_id"])
         if identity in seen:
@@ -88,13 +91,27 @@ def read_results(path: Path, warn=None) -> list[dict]:
     return records
 
 
+def _whole(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def config_problem(config) -> str | None:
+    """What makes a train record's run config unusable for the report (None: nothing): not a mapping, or one of
+    `CONFIG_FIELDS` missing or of another type."""
+    if not isinstance(config, dict):
+        return f"config = {json.dumps(config)[:40]} is not a mapping of the run's settings"
+    for name, kind in CONFIG_FIELDS.items():
+        value = config.get(name)
+        if not (_whole(value) if kind is int else isinstance(value, kind)):
+            return f"config.{name} = {json.dumps(value)[:40]} is not a {'whole number' if kind is int else 'string'}"
+    return None
+
+
 def impossible_counts(record: dict) -> str | None:
     """What is impossible in an eval record's counts (None: nothing): episodes a whole number >= 1, successes a
-    whole number in 0..episodes, success_rate (where given) a finite number in [0, 1]."""
-
-    def whole(value) -> bool:
-        return isinstance(value, int) and not isinstance(value, bool)
-
+    whole number in 0..episodes, success_rate (where given) a finite number in [0, 1], and the per-seed outcomes
+    (where given) one per episode, as many successes as `successes` says."""
+    whole = _whole
     episodes, successes = record["episodes"], record["successes"]
     if not whole(episodes) or episodes < 1:
         return f"episodes = {episodes!r} is not a whole number >= 1"
@@ -105,6 +122,20 @@ def impossible_counts(record: dict) -> str | None:
         isinstance(rate, (int, float)) and not isinstance(rate, bool) and math.isfinite(rate) and 0 <= rate <= 1
     ):
         return f"success_rate = {rate!r} is not a finite number in [0, 1]"
+    outcomes = record.get("per_seed")
+    if outcomes is not None:
+        fields = outcomes if isinstance(outcomes, dict) else {}
+        seeds, success, length = fields.get("seeds"), fields.get("success"), fields.get("length")
+        if not (
+            isinstance(seeds, list)
+            and isinstance(length, list)
+            and isinstance(success, str)
+            and set(success) <= {"1", "."}
+            and len(seeds) == len(success) == len(length) == episodes
+        ):
+            return f"per_seed is not {episodes} episodes' seeds, success ('1' or '.') and length"
+        if success.count("1") != successes:
+            return f"per_seed holds {success.count('1')} successes where successes = {successes}"
     return None
 
 
