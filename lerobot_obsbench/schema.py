@@ -79,6 +79,9 @@ EE_POSE_SIZE = 7  # xyz + quaternion (w, x, y, z)
 # sensors, so only the oracle reads it.
 PRIVILEGED_STATE_KEY = OBS_PREFIX + "privileged_state"
 POSE_SIZE = 7
+# The names of one object's POSE_SIZE values in observation.privileged_state (LeRobot feature names
+# `<object>.<component>`), so a checkpoint knows which objects its oracle input describes.
+POSE_COMPONENTS = ("x", "y", "z", "qw", "qx", "qy", "qz")
 # The smallest camera frame (pixels, square) every stage handles: LeRobot's AV1 video encoder (SVT-AV1) fails on
 # smaller frames, after the simulation has run; so demos, grids and envs refuse it up front.
 MIN_IMAGE_SIZE = 32
@@ -356,6 +359,7 @@ def compatibility_problems(
     resolution: tuple[int, int] | list[int] | None,
     state_dim: int | None,
     action_dim: int | None,
+    objects: list[str] | tuple[str, ...] | None = None,
 ) -> list[str]:
     """What a policy `config` (the plugin's: `cameras`, `camera_resolution`, state and action features) needs and
     an observation source does not give; one phrase per problem, each naming the flag that fixes it.
@@ -376,6 +380,7 @@ def compatibility_problems(
     state = config.robot_state_feature
     if state is not None and state_dim is not None and state.shape[0] != state_dim:
         problems.append(f"the policy expects observation.state of size {state.shape[0]}, the env gives {state_dim}")
+    problems += oracle_problems(config, objects)
     action = config.action_feature
     if action is not None and action_dim is not None and action.shape[0] != action_dim:
         problems.append(
@@ -385,9 +390,39 @@ def compatibility_problems(
     return problems
 
 
-def check_compatibility(config, cameras=None, resolution=None, state_dim=None, action_dim=None) -> None:
+def privileged_state_names(objects: list[str] | tuple[str, ...]) -> list[str]:
+    """LeRobot feature names of observation.privileged_state for `objects`' poses, in order."""
+    return [f"{name}.{component}" for name in objects for component in POSE_COMPONENTS]
+
+
+def privileged_state_objects(names: list[str]) -> list[str]:
+    """The objects whose poses `privileged_state_names` named, in order."""
+    return list(dict.fromkeys(name.rsplit(".", 1)[0] for name in names))
+
+
+def oracle_problems(config, objects: list[str] | tuple[str, ...] | None) -> list[str]:
+    """Whether an oracle policy's object poses are the task's `objects` (None: not checked): the objects it was
+    trained on where the checkpoint names them, else the number of values."""
+    if objects is None or getattr(config, "obs_space", None) not in ORACLE_SPACES:
+        return []
+    trained = privileged_state_objects(list(getattr(config, "privileged_state_names", None) or []))
+    if trained and trained != list(objects):
+        return [
+            f"the oracle policy was trained on the poses of {trained} but this task gives the poses of "
+            f"{list(objects)} (evaluate it on a task with those objects, in that order)"
+        ]
+    width = getattr(config, "privileged_state_dim", 0)
+    if width and width != len(objects) * POSE_SIZE:
+        return [
+            f"the oracle policy reads {width} object-pose values ({width // POSE_SIZE} objects) but this task gives "
+            f"{len(objects) * POSE_SIZE} ({list(objects)})"
+        ]
+    return []
+
+
+def check_compatibility(config, cameras=None, resolution=None, state_dim=None, action_dim=None, objects=None) -> None:
     """Raise `SchemaError` listing every `compatibility_problems`."""
-    problems = compatibility_problems(config, cameras, resolution, state_dim, action_dim)
+    problems = compatibility_problems(config, cameras, resolution, state_dim, action_dim, objects)
     if problems:
         raise SchemaError("Policy and env do not match: " + "; ".join(problems) + ".")
 

@@ -117,7 +117,11 @@ def features(
     if not with_goal:
         del feats["observation.environment_state"]
     if privileged:
-        feats["observation.privileged_state"] = {"dtype": "float32", "shape": (7,), "names": None}
+        feats["observation.privileged_state"] = {
+            "dtype": "float32",
+            "shape": (7,),
+            "names": [f"cube.{c}" for c in ("x", "y", "z", "qw", "qx", "qy", "qz")],
+        }
     return feats
 
 

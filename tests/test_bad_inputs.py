@@ -223,6 +223,74 @@ def refine_cameras_inverted_workspace(root: Path) -> list[str]:
     return ["refine-cameras", "--playback", "a.bag", "b.bag", "--workspace", "0", "0", "-1", "1", "0", "1"]
 
 
+def eval_on_a_gpu_this_machine_lacks(root: Path) -> list[str]:
+    """Used to fail after the policy loaded, in torch."""
+    return [*_eval(root / "e.json"), "--policy.device", "cuda:99"]
+
+
+def eval_on_a_device_that_does_not_exist(root: Path) -> list[str]:
+    return [*_eval(root / "e.json"), "--policy.device", "gpu"]
+
+
+def eval_with_a_negative_episode_length(root: Path) -> list[str]:
+    """Used to be found only after the policy and the simulator loaded."""
+    return [*_eval(root / "e.json"), "--env.episode_length", "-5"]
+
+
+def eval_a_checkpoint_with_a_truncated_config(root: Path) -> list[str]:
+    """Used to end in a JSONDecodeError traceback."""
+    checkpoint = root / "pretrained_model"
+    checkpoint.mkdir()
+    (checkpoint / "config.json").write_text('{"type": "obs_act", "chunk_si')
+    return ["eval", "--policy.path", str(checkpoint), "--env.task", "PushCube-v1"]
+
+
+def eval_an_oracle_on_another_tasks_objects(root: Path) -> list[str]:
+    """Used to evaluate (exit 0): the synthetic cube's pose (7 values) fed as LiftPegUpright's peg pose."""
+    from scripts import make_synthetic_dataset as synthetic
+    from tests.helpers import training_setup
+
+    dataset = synthetic.write_dataset(
+        root / "ds", episodes=2, frames=6, size=32, seed=3, with_goal=False, privileged=True, use_video=False
+    )
+    policy, pre, post, _ = training_setup("obs_act", "state", dataset)
+    for part in (policy, pre, post):
+        part.save_pretrained(root / "pretrained_model")
+    return ["eval", "--policy.path", str(root / "pretrained_model"), "--env.task", "LiftPegUpright-v1"]
+
+
+def demos_below_the_first_demonstration_seed(root: Path) -> list[str]:
+    """Used to end in a bare ValueError traceback."""
+    return ["demos", "--task", "PushCube-v1", "--episodes", "2", "--out", str(root / "d"), "--seed-start", "5"]
+
+
+def demos_of_a_camera_typo(root: Path) -> list[str]:
+    """Used to start the simulator and end in a worker's traceback naming --env.cameras, which demos has not."""
+    return ["demos", "--task", "PushCube-v1", "--episodes", "2", "--out", str(root / "d"), "--cameras", "base_camra"]
+
+
+def grid_override_lerobot_train_cannot_parse(root: Path) -> list[str]:
+    """Used to pass the checks (Python takes 0 for a bool) and fail in lerobot-train after the demos."""
+    return _grid(root, "tasks: [PushCube-v1]\nobs_spaces: [rgb]\nsteps: 5\npolicy_overrides: {use_vae: 0}\n")
+
+
+def grid_with_a_camera_typo(root: Path) -> list[str]:
+    """Used to be found only when the demonstrations started recording."""
+    return _grid(root, "tasks: [PushCube-v1]\nobs_spaces: [rgb]\nsteps: 5\ncameras: [base_camra]\n")
+
+
+def run_with_no_workers(root: Path) -> list[str]:
+    return ["run", "quick", "--workers", "0", "--dry-run", "--out", str(root / "out")]
+
+
+def calibrate_cameras_with_no_views(root: Path) -> list[str]:
+    return ["calibrate-cameras", "--playback", str(root / "board.bag"), "--views", "0"]
+
+
+def refine_cameras_with_an_overlap_above_one(root: Path) -> list[str]:
+    return ["refine-cameras", "--playback", "a.bag", "b.bag", "--min-overlap", "30"]
+
+
 def grid_with_a_duplicated_key(root: Path) -> list[str]:
     return _grid(root, "tasks: [PushCube-v1]\nobs_spaces: [rgb]\nsteps: 5\nsteps: 50\n")
 
@@ -400,6 +468,18 @@ ROWS = [
     (view_out_over_the_datasets_metadata, ["--out", "info.json would write over this command's input"]),
     (report_into_a_dataset, ["--out", "is inside the LeRobot dataset", "write outputs outside datasets"]),
     (view_ply_over_an_existing_file, ["--ply", "cloud.ply already exists; add --overwrite"]),
+    (eval_on_a_gpu_this_machine_lacks, ["argument --policy.device: cuda:99:", "give cpu"]),
+    (eval_on_a_device_that_does_not_exist, ["argument --policy.device: 'gpu' is not a torch device"]),
+    (eval_with_a_negative_episode_length, ["argument --env.episode_length: must be >= 1, got -5"]),
+    (eval_a_checkpoint_with_a_truncated_config, ["config.json cannot be read", "the checkpoint is damaged"]),
+    (eval_an_oracle_on_another_tasks_objects, ["trained on the poses of ['cube'] but this task gives the poses of"]),
+    (demos_below_the_first_demonstration_seed, ["argument --seed-start: must be >= 100000, got 5"]),
+    (demos_of_a_camera_typo, ["cameras ['base_camra']: PushCube-v1 has no such camera", "['base_camera']"]),
+    (grid_override_lerobot_train_cannot_parse, ["{'use_vae': 0}", "Couldn't parse '0' into a bool"]),
+    (grid_with_a_camera_typo, ["cameras ['base_camra']: PushCube-v1 has no such camera"]),
+    (run_with_no_workers, ["argument --workers: must be >= 1, got 0"]),
+    (calibrate_cameras_with_no_views, ["argument --views: must be >= 1, got 0"]),
+    (refine_cameras_with_an_overlap_above_one, ["argument --min-overlap: must be a number in (0, 1], got 30"]),
     (grid_with_a_duplicated_key, ["'steps' is given twice (lines 3 and 4)"]),
     (grid_with_held_out_demos_in_words, ["held_out_demos", "whole number"]),
     (grid_with_negative_held_out_demos, ["held_out_demos", ">= 0"]),

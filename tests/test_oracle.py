@@ -102,3 +102,39 @@ def test_diagnostics_of_a_saved_checkpoint(sim_like_dataset, tmp_path, obs_space
         assert 0.2 < found["object_token_share"] <= 1.0
     else:
         assert "object_token_share" not in found
+
+
+def test_a_checkpoint_names_its_objects_and_eval_refuses_other_ones(sim_like_dataset, tmp_path):
+    """An oracle trained on one task's object poses used to be evaluated on another task whose poses have the same
+    width, without a word (PushCube's fed StackCube's)."""
+    from lerobot_obsbench.schema import check_compatibility, oracle_problems
+
+    policy, pre, post, _ = training_setup("obs_act", "state", sim_like_dataset)
+    assert policy.config.privileged_state_names == [
+        "cube.x",
+        "cube.y",
+        "cube.z",
+        "cube.qw",
+        "cube.qx",
+        "cube.qy",
+        "cube.qz",
+    ]
+    for part in (policy, pre, post):
+        part.save_pretrained(tmp_path / "ckpt")
+    loaded, _, _ = load_policy(tmp_path / "ckpt")
+    assert loaded.config.privileged_state_names == policy.config.privileged_state_names
+    assert oracle_problems(loaded.config, ("cube",)) == []
+    with pytest.raises(
+        SchemaError, match=r"trained on the poses of \['cube'\] but this task gives the poses of \['peg'\]"
+    ):
+        check_compatibility(loaded.config, objects=("peg",))  # the same width, other objects
+    # a checkpoint that does not name its objects (trained before they were recorded): the width is still checked
+    loaded.config.privileged_state_names = []
+    assert oracle_problems(loaded.config, ("peg",)) == []
+    assert (
+        "reads 7 object-pose values (1 objects) but this task gives 14"
+        in oracle_problems(loaded.config, ("cubeA", "cubeB"))[0]
+    )
+    # every other space has no object poses to check
+    seeing, *_ = training_setup("obs_act", "rgb", sim_like_dataset)
+    assert seeing.config.privileged_state_names == [] and oracle_problems(seeing.config, ("peg",)) == []

@@ -180,7 +180,7 @@ def test_policy_env_compatibility_names_each_mismatch(tiny_dataset):
     assert policy.config.camera_resolution == [40, 40]
     # the synthetic dataset has a 15-D state; ObsBenchEnv gives 16 (9 joints + TCP pose)
     with pytest.raises(SchemaError) as err:
-        check_compatible(policy.config, ["hand_camera"], 64, "pd_joint_pos")  # pd_joint_pos: 8-D actions
+        check_compatible(policy.config, ["hand_camera"], 64, "pd_joint_pos", "PushCube-v1")  # pd_joint_pos: 8-D actions
     message = str(err.value)
     assert "cameras ['base_camera'] but the env renders ['hand_camera']" in message
     assert "trained on 40x40 frames" in message and "--env.image_size=40" in message

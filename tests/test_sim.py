@@ -20,7 +20,7 @@ import torch
 
 from lerobot_obsbench import geometry, schema
 from lerobot_obsbench.envs import ObsBenchEnvConfig, TaskError
-from lerobot_obsbench.envs.base_task import task_spec
+from lerobot_obsbench.envs.base_task import TASKS, task_spec
 from lerobot_obsbench.envs.maniskill import ObsBenchEnv
 
 pytestmark = pytest.mark.slow
@@ -91,8 +91,10 @@ def test_bad_env_input_is_explained():
         ObsBenchEnvConfig(task="PickSphere-v1")
     with pytest.raises(ValueError, match="control_mode"):
         ObsBenchEnvConfig(control_mode="pd_ee_pose")
-    with pytest.raises(ValueError, match=r"no camera \['wrist'\].*base_camera"):
+    with pytest.raises(ValueError, match=r"cameras \['wrist'\]: PushCube-v1 has no such camera.*base_camera"):
         ObsBenchEnv("PushCube-v1", cameras=["wrist"], image_size=32)
+    with pytest.raises(TaskError, match=r"cameras \['wrist'\]: PushCube-v1 has no such camera"):
+        ObsBenchEnvConfig(task="PushCube-v1", cameras=["wrist"])  # lerobot-eval: before the policy loads
 
 
 def test_missing_assets_fail_fast_without_prompting(tmp_path):
@@ -500,6 +502,7 @@ def test_import_maniskill_trajectories_written_by_record_episode(tmp_path):
     h5 = tmp_path / "ms" / "pick.h5"
     info = import_trajectories(h5, tmp_path / "ds", image_size=32)
     ds = LeRobotDataset("local/imported", root=tmp_path / "ds")
+    assert ds.meta.features["observation.privileged_state"]["names"][:2] == ["cube.x", "cube.y"]
     assert ds.meta.total_episodes == len(info["episode_ids"]) == 2
     with h5py.File(h5) as f:
         for ep, traj_id in enumerate(info["episode_ids"]):
@@ -582,6 +585,8 @@ def test_demos_for_every_task_with_an_expert(task, tmp_path):
     # the oracle's object poses are recorded with the sensors
     actors = task_spec(task).privileged_actors
     assert actors and ds[0]["observation.privileged_state"].shape == (7 * len(actors),)
+    names = ds.meta.features["observation.privileged_state"]["names"]  # what a checkpoint learns its objects from
+    assert names == [f"{a}.{c}" for a in actors for c in ("x", "y", "z", "qw", "qx", "qy", "qz")]
 
 
 def test_demo_errors(tmp_path):
@@ -752,3 +757,14 @@ def test_stock_dataset_viewer_opens_recorded_demos(demos, tmp_path):
     assert viz.returncode == 0, viz.stderr[-3000:]
     recording = tmp_path / "local_demos_episode_0.rrd"
     assert recording.is_file() and b"observation.images.base_camera" in recording.read_bytes()
+
+
+@pytest.mark.parametrize("task", sorted(t for t, spec in TASKS.items() if not spec.asset_group))
+def test_each_task_renders_the_cameras_it_declares(task):
+    """Grids and demos refuse a camera typo from the task's declared cameras, before any simulator starts: they
+    must be the ones the built env renders."""
+    env = ObsBenchEnv(task=task, image_size=32, cameras=["base_camera"])
+    try:
+        assert sorted(env.unwrapped_ms._sensors) == sorted(task_spec(task).camera_names)
+    finally:
+        env.close()

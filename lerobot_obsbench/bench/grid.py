@@ -31,11 +31,11 @@ from pathlib import Path
 import yaml
 
 from lerobot_obsbench.bench.package_data import GRIDS, path_or_shipped, shipped
-from lerobot_obsbench.envs.base_task import TASKS, task_spec
+from lerobot_obsbench.envs.base_task import TASKS, TaskError, check_cameras, task_spec
 from lerobot_obsbench.envs.maniskill import DEFAULT_CONTROL_MODE
 from lerobot_obsbench.envs.perturbations import parse_perturbation
 from lerobot_obsbench.errors import ObsBenchError
-from lerobot_obsbench.presets import PRESETS, preset_encoder, preset_overrides
+from lerobot_obsbench.presets import PRESETS, preset_args, preset_encoder
 from lerobot_obsbench.rlbench.evaluate import MAX_STEPS as RLBENCH_MAX_STEPS
 from lerobot_obsbench.rlbench.evaluate import camera_view_for
 from lerobot_obsbench.rlbench.paper_tasks import CAMERAS as RLBENCH_CAMERAS
@@ -111,6 +111,23 @@ class RunSpec:
     def run_id(self) -> str:
         return _digest(self.config())
 
+    def policy_args(self) -> list[str]:
+        """The `--policy.<field>=<value>` arguments lerobot-train gets for this run (all but its type and device),
+        as lerobot-train's parser reads them."""
+        sizes = [
+            a
+            for a in preset_args(self.preset, self.policy, self.obs_space, self.encoder)
+            if not a.startswith("--policy.encoder=")
+        ]
+        return [
+            f"--policy.obs_space={self.obs_space}",
+            *sizes,
+            f"--policy.encoder={self.encoder}",
+            f"--policy.cameras=[{','.join(self.cameras)}]",
+            *(f"--policy.{k}={_cli_value(v)}" for k, v in self.policy_overrides),
+            f"--policy.optimizer_lr={self.lr}",
+        ]
+
     @property
     def method(self) -> str:
         """Column label in reports: what differs between the compared methods."""
@@ -166,6 +183,10 @@ class EvalSpec:
     @property
     def eval_id(self) -> str:
         return _digest(self.config())
+
+
+def _cli_value(value) -> str:
+    return "[" + ",".join(str(v) for v in value) + "]" if isinstance(value, (list, tuple)) else str(value)
 
 
 def _as_list(value, name: str) -> list:
@@ -459,6 +480,11 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
         if isinstance(values.get(key), dict):
             _choose(list(values[key]), list(policies), f"policies in {key}")
     _check_values(values, name)
+    for task in [] if rlbench else tasks:
+        try:
+            check_cameras(task_spec(task), values.get("cameras", ["base_camera"]))
+        except TaskError as err:
+            raise GridError(f"{name}: {err}") from None
     grid = Grid(
         name=str(values["name"]),
         tasks=tasks,
@@ -550,26 +576,25 @@ def _check_rlbench(values: dict, tasks: list, rlbench: list[str], name: str) -> 
 def check_policy_configs(grid: Grid, name: str) -> None:
     """Build each distinct policy config of the grid now, so an unknown field or a value that does not fit the
     space / encoder (e.g. pre-sampling for rgb) fails before anything runs."""
+    import draccus
     from lerobot.configs.policies import PreTrainedConfig
 
     seen = set()
     for run in grid.expand():
-        key = json.dumps([run.policy, run.obs_space, run.encoder, run.policy_overrides], default=str)
+        key = json.dumps([run.policy, run.obs_space, run.encoder, run.policy_overrides, run.lr], default=str)
         if key in seen:
             continue
         seen.add(key)
         config_class = PreTrainedConfig.get_choice_class(run.policy)
-        fields = {
-            **preset_overrides(run.preset, run.policy, run.obs_space, run.encoder),
-            "encoder": run.encoder,
-            **dict(run.policy_overrides),
-        }
-        unknown = sorted(set(fields) - set(config_class.__dataclass_fields__))
+        unknown = sorted(set(dict(run.policy_overrides)) - set(config_class.__dataclass_fields__))
         if unknown:
             raise GridError(f"{name}: {run.policy} has no fields {unknown} (policy_overrides / variants)")
-        try:
-            config_class(obs_space=run.obs_space, device="cpu", **fields)
-        except (ValueError, TypeError) as err:
+        args = [arg.replace("--policy.", "--", 1) for arg in run.policy_args()]
+        try:  # lerobot-train's own parser, on the arguments it will get
+            draccus.parse(config_class, args=[*args, "--device=cpu"])
+        except (ValueError, TypeError, draccus.utils.DraccusException) as err:
+            if "Couldn't instantiate" in str(err) and err.__context__ is not None:
+                err = err.__context__  # the config's own check, which draccus wraps without its message
             raise GridError(f"{name}: {run.method} with {dict(run.policy_overrides)}: {err}") from None
 
 

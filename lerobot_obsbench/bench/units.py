@@ -124,31 +124,14 @@ def log_every(steps: int) -> int:
     return max(min(steps // 50, 200), 1)
 
 
-def _cli_value(value) -> str:
-    return "[" + ",".join(str(v) for v in value) + "]" if isinstance(value, (list, tuple)) else str(value)
-
-
 def train_command(
     run: RunSpec, dataset: Path, output_dir: Path, steps: int, device: str, save_every: int, loader_workers: int = 0
 ) -> list[str]:
     """Stock lerobot-train for one run (a fresh start; `resume_command` continues one)."""
-    from lerobot_obsbench.presets import preset_args
-
-    overrides = [f"--policy.{k}={_cli_value(v)}" for k, v in run.policy_overrides]
-    sizes = [
-        a
-        for a in preset_args(run.preset, run.policy, run.obs_space, run.encoder)
-        if not a.startswith("--policy.encoder=")
-    ]
     return [
         str(Path(sys.executable).parent / "lerobot-train"),
         f"--policy.type={run.policy}",
-        f"--policy.obs_space={run.obs_space}",
-        *sizes,
-        f"--policy.encoder={run.encoder}",
-        f"--policy.cameras=[{','.join(run.cameras)}]",
-        *overrides,
-        f"--policy.optimizer_lr={run.lr}",
+        *run.policy_args(),
         f"--policy.device={device}",
         "--dataset.repo_id=local/obsbench",
         f"--dataset.root={dataset}",

@@ -22,17 +22,21 @@ EXAMPLE = """obsbench calibrate-cameras --serial 123456789 --views 10"""
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--serial", default=None, help="camera serial (obsbench find-cameras)")
     p.add_argument("--playback", default=None, help="a recorded .bag instead of a live camera")
-    p.add_argument("--width", type=int, default=1280)
-    p.add_argument("--height", type=int, default=720)
-    p.add_argument("--fps", type=int, default=30)
-    p.add_argument("--views", type=int, default=10, help="frames to average")
-    p.add_argument("--interval", type=float, default=0.1, help="seconds between views")
-    p.add_argument("--min-views", type=int, default=5)
-    p.add_argument("--min-corners", type=int, default=12, help="refuse a view with fewer ChArUco corners")
-    p.add_argument("--max-reprojection", type=float, default=1.0, help="refuse a view above this RMS error (px)")
-    p.add_argument("--squares", type=int, nargs=2, default=(5, 7), metavar=("X", "Y"))
-    p.add_argument("--square-length", type=float, default=0.035, help="metres, as printed")
-    p.add_argument("--marker-length", type=float, default=0.026, help="metres, as printed")
+    p.add_argument("--width", type=common.positive_int, default=1280)
+    p.add_argument("--height", type=common.positive_int, default=720)
+    p.add_argument("--fps", type=common.positive_int, default=30)
+    p.add_argument("--views", type=common.positive_int, default=10, help="frames to average")
+    p.add_argument("--interval", type=common.non_negative_float, default=0.1, help="seconds between views")
+    p.add_argument("--min-views", type=common.positive_int, default=5)
+    p.add_argument(
+        "--min-corners", type=common.whole_number(4), default=12, help="refuse a view with fewer ChArUco corners"
+    )
+    p.add_argument(
+        "--max-reprojection", type=common.positive_float, default=1.0, help="refuse a view above this RMS error (px)"
+    )
+    p.add_argument("--squares", type=common.whole_number(2), nargs=2, default=(5, 7), metavar=("X", "Y"))
+    p.add_argument("--square-length", type=common.positive_float, default=0.035, help="metres, as printed")
+    p.add_argument("--marker-length", type=common.positive_float, default=0.026, help="metres, as printed")
     p.add_argument("--dictionary", default="DICT_4X4_50")
     p.add_argument(
         "--board-pose",

@@ -30,7 +30,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cameras", nargs="+", default=["base_camera"])
     p.add_argument(
         "--seed-start",
-        type=int,
+        type=common.whole_number(DEMO_SEED_START),
         default=DEMO_SEED_START,
         help=f"first demonstration seed (>= "
         f"{DEMO_SEED_START}; lower seeds are reserved for evaluation and checkpoint selection)",

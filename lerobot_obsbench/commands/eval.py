@@ -33,7 +33,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="default: the resolution the policy was trained on",
     )
     p.add_argument("--env.control_mode", dest="control_mode", default=DEFAULT_CONTROL_MODE, choices=CONTROL_MODES)
-    p.add_argument("--env.episode_length", dest="episode_length", type=int, default=None)
+    p.add_argument(
+        "--env.episode_length",
+        dest="episode_length",
+        type=positive_int,
+        default=None,
+        help="steps per episode (default: the task's)",
+    )
     p.add_argument("--env.asset_dir", dest="asset_dir", default=None)
     p.add_argument(
         "--env.perturbation",
@@ -41,7 +47,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="zero-shot perturbation kind:value, e.g. camera_yaw:10, light:0.03, background:1,0.2,0.2, noise:16",
     )
-    p.add_argument("--policy.device", dest="device", default="cpu")
+    p.add_argument("--policy.device", dest="device", type=common.torch_device, default="cpu")
     p.add_argument(
         "--eval.batch_size",
         dest="batch_size",

@@ -29,7 +29,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--clip-weights", default=None, help="the CLIP checkpoint the dataset was imported with")
     p.add_argument("--quaternion", default="pcm_compat", choices=QUATERNION_MODES)
-    p.add_argument("--policy.device", dest="device", default="cpu")
+    p.add_argument("--policy.device", dest="device", type=common.torch_device, default="cpu")
     p.add_argument("--out", type=Path, default=None, help="write the JSON result here (a file, checked first)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
 

@@ -35,7 +35,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--max-deg", type=common.positive_float, default=2.0, help="refuse a correction turning a camera further"
     )
-    p.add_argument("--min-overlap", type=float, default=0.3, help="refuse when less of a cloud meets the reference")
+    p.add_argument(
+        "--min-overlap", type=common.fraction, default=0.3, help="refuse when less of a cloud meets the reference"
+    )
     p.add_argument("--voxel-size", type=common.positive_float, default=0.005, help="of the --ply cloud")
     p.add_argument("--ply", type=Path, default=None, help="write the fused cloud after the refinement as .ply")
     p.add_argument("--dry-run", action="store_true", help="report the corrections; save nothing")

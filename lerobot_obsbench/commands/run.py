@@ -35,23 +35,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "ray: Ray tasks on an existing cluster (--address) or a new local Ray instance",
     )
     p.add_argument("--address", default=None, help="Ray cluster address (e.g. auto, or ray://HEAD:10001)")
-    p.add_argument("--workers", type=int, default=1, help="units of work run in parallel by the local engine")
+    p.add_argument(
+        "--workers", type=common.positive_int, default=1, help="units of work run in parallel by the local engine"
+    )
     p.add_argument(
         "--device",
+        type=common.device_name,
         default="cpu",
         help="torch device for training, evaluation and the simulator's "
         "renderer (cpu, cuda, cuda:N); with cuda each unit asks the engine for one GPU",
     )
     p.add_argument(
         "--threads",
-        type=int,
+        type=common.positive_int,
         default=None,
         help="CPU threads per unit (default: the cores shared by the local workers; 1 per CPU under Ray)",
     )
-    p.add_argument("--progress-every", type=float, default=30.0, help="seconds between progress lines")
+    p.add_argument("--progress-every", type=common.positive_float, default=30.0, help="seconds between progress lines")
     p.add_argument(
         "--loader-workers",
-        type=int,
+        type=common.non_negative_int,
         default=None,
         help="DataLoader workers per training run (default: 0 on cpu, 4 on a GPU)",
     )

@@ -26,7 +26,7 @@ from lerobot_obsbench.datasets.staging import (
 from lerobot_obsbench.envs.base_task import TaskError, task_spec
 from lerobot_obsbench.envs.maniskill import CONTROL_FPS, DEFAULT_CONTROL_MODE, ROBOT_TYPE
 from lerobot_obsbench.locks import exclusive_output
-from lerobot_obsbench.schema import ACTION_KEY
+from lerobot_obsbench.schema import ACTION_KEY, PRIVILEGED_STATE_KEY, privileged_state_names
 
 SIDECAR = "obsbench_import.json"
 
@@ -118,6 +118,7 @@ def _import_locked(h5_path, out, task, episodes, image_size, cameras, control_mo
         repo_id=repo_id or f"local/obsbench_{task}_imported",
         fps=CONTROL_FPS,
         robot_type=ROBOT_TYPE,
+        feature_names={PRIVILEGED_STATE_KEY: privileged_state_names(task_spec(task).privileged_actors)},
     )
     info = {
         "task": task,

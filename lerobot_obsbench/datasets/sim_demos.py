@@ -34,11 +34,18 @@ from lerobot_obsbench.datasets.staging import (
     save_episode_file,
     settings_differences,
 )
-from lerobot_obsbench.envs.base_task import DEMO_SEED_START, task_spec
+from lerobot_obsbench.envs.base_task import DEMO_SEED_START, check_cameras, task_spec
 from lerobot_obsbench.envs.maniskill import CONTROL_FPS, ROBOT_TYPE
 from lerobot_obsbench.envs.vector import make_envs
+from lerobot_obsbench.errors import UsageError
 from lerobot_obsbench.locks import exclusive_output
-from lerobot_obsbench.schema import ACTION_KEY, MIN_IMAGE_SIZE, env_observation_to_frame
+from lerobot_obsbench.schema import (
+    ACTION_KEY,
+    MIN_IMAGE_SIZE,
+    PRIVILEGED_STATE_KEY,
+    env_observation_to_frame,
+    privileged_state_names,
+)
 
 ATTEMPTS_LOG = "attempts.jsonl"
 SIDECAR = "obsbench_demos.json"
@@ -131,15 +138,16 @@ def record_demos(
     if spec.expert is None:
         spec.make_expert(None)  # raises the explanatory NotImplementedError
     if seed_start < DEMO_SEED_START:
-        raise ValueError(f"demonstration seeds must start at >= {DEMO_SEED_START} (below are evaluation seeds)")
+        raise UsageError(f"--seed-start must be >= {DEMO_SEED_START} (below are evaluation seeds); got {seed_start}")
     if episodes < 1:
-        raise ValueError(f"--episodes must be >= 1; got {episodes}")
+        raise UsageError(f"--episodes must be >= 1; got {episodes}")
     if workers < 1:
-        raise ValueError(f"--workers must be >= 1; got {workers}")
+        raise UsageError(f"--workers must be >= 1; got {workers}")
     if image_size < MIN_IMAGE_SIZE:
-        raise ValueError(
+        raise UsageError(
             f"--image-size must be >= {MIN_IMAGE_SIZE} pixels (LeRobot's video encoder fails below); got {image_size}"
         )
+    check_cameras(spec, cameras)
     settings = {"task": spec.name, "image_size": image_size, "cameras": list(cameras), "seed_start": seed_start}
     with exclusive_output(out, "obsbench demos"):
         prepare_dataset_out(
@@ -207,6 +215,7 @@ def _record_locked(
         repo_id=repo_id or f"local/obsbench_{task}",
         fps=CONTROL_FPS,
         robot_type=ROBOT_TYPE,
+        feature_names={PRIVILEGED_STATE_KEY: privileged_state_names(spec.privileged_actors)},
     )
     tried = sum(s <= seeds[-1] for s in attempted)  # what one worker attempts (more workers try a few more)
     info = {

@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -45,7 +46,8 @@ def drop_unfinished(staging: Path) -> int:
     return len(unfinished)
 
 
-def dataset_features(sample: dict[str, np.ndarray]) -> dict:
+def dataset_features(sample: dict[str, np.ndarray], names: Mapping[str, list[str]] | None = None) -> dict:
+    """LeRobot features of an episode's arrays; `names`: the names of a vector feature's values, by key."""
     feats = {}
     for key, value in sample.items():
         shape = tuple(value.shape[1:])
@@ -54,7 +56,7 @@ def dataset_features(sample: dict[str, np.ndarray]) -> dict:
         elif key.startswith(DEPTH_PREFIX):
             feats[key] = {"dtype": "uint16", "shape": shape, "names": ["height", "width", "channels"]}
         else:
-            feats[key] = {"dtype": "float32", "shape": shape, "names": None}
+            feats[key] = {"dtype": "float32", "shape": shape, "names": (names or {}).get(key)}
     return feats
 
 
@@ -72,9 +74,10 @@ def assemble(
     repo_id: str,
     fps: int,
     robot_type: str,
+    feature_names: Mapping[str, list[str]] | None = None,
 ) -> None:
     """(Re)write the LeRobotDataset in `out` from staged episode files, in the given order; `task_text` is
-    LeRobot's task string, one for all episodes or one per episode."""
+    LeRobot's task string, one for all episodes or one per episode; `feature_names` as `dataset_features`'."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     for name in DATASET_ENTRIES:  # leftovers of an interrupted assembly
@@ -86,7 +89,7 @@ def assemble(
     ds = LeRobotDataset.create(
         repo_id=repo_id,
         fps=fps,
-        features=dataset_features(episodes[0]),
+        features=dataset_features(episodes[0], feature_names),
         root=tmp_root,
         robot_type=robot_type,
         use_videos=True,

@@ -80,6 +80,9 @@ class Task:
     # The objects a seeing policy must find, among `privileged_actors`: attribute -> bounding-sphere radius in
     # metres. The diagnostics count the point tokens and pixels that fall on them.
     objects: ClassVar[dict[str, float]] = {}
+    # The cameras the task renders (ManiSkill's sensors; `observation.*.<cam>` keys), so a typo is refused before a
+    # simulator starts.
+    camera_names: ClassVar[tuple[str, ...]] = ("base_camera",)
     # The task's own `base_camera` (OBSBench's, replacing ManiSkill's): eye and target points in the world frame
     # (metres) and the field of view (radians). None: ManiSkill's camera.
     camera: ClassVar[tuple[tuple[float, float, float], tuple[float, float, float], float] | None] = None
@@ -137,6 +140,14 @@ def register_task(cls: type[Task]) -> type[Task]:
         raise ValueError(f"task {cls.name!r} reports a grasp milestone but names no grasped object")
     TASKS[cls.name] = cls()
     return cls
+
+
+def check_cameras(spec: Task, cameras, rendered: list[str] | None = None) -> None:
+    """Refuse `cameras` the task does not render, naming those it does (`rendered`: a built env's sensors)."""
+    available = list(spec.camera_names if rendered is None else rendered)
+    unknown = [cam for cam in cameras if cam not in available]
+    if unknown:
+        raise TaskError(f"cameras {unknown}: {spec.name} has no such camera; its cameras are {available}")
 
 
 def task_spec(name: str) -> Task:

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field, make_dataclass
 from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
 
-from lerobot_obsbench.envs.base_task import TASKS, task_spec
+from lerobot_obsbench.envs.base_task import TASKS, check_cameras, task_spec
 from lerobot_obsbench.envs.maniskill import ACTION_DIMS, CONTROL_FPS, CONTROL_MODES, DEFAULT_CONTROL_MODE, STATE_DIM
 from lerobot_obsbench.envs.perturbations import parse_perturbation
 from lerobot_obsbench.schema import ACTION_KEY, ENV_STATE_KEY, STATE_KEY, image_key
@@ -43,6 +43,7 @@ class ObsBenchEnvConfig(EnvConfig):
     def __post_init__(self):
         spec = task_spec(self.task)
         parse_perturbation(self.perturbation)  # a typo fails here, not after the policy loaded
+        check_cameras(spec, self.cameras)
         if self.control_mode not in CONTROL_MODES:
             raise ValueError(f"control_mode must be one of {CONTROL_MODES}; got {self.control_mode!r}")
         size = (self.image_size, self.image_size, 3)

@@ -52,9 +52,10 @@ from lerobot_obsbench.schema import check_compatibility
 from lerobot_obsbench.stats import per_seed, success_summary
 
 
-def check_compatible(config, cameras: list[str], image_size: int, control_mode: str) -> None:
-    """Refuse a policy whose cameras, image size, state or action do not match the env (clear message)."""
-    check_compatibility(config, cameras, (image_size, image_size), STATE_DIM, ACTION_DIMS[control_mode])
+def check_compatible(config, cameras: list[str], image_size: int, control_mode: str, task: str) -> None:
+    """Refuse a policy whose cameras, image size, state, action or oracle objects do not match the env."""
+    objects = task_spec(task).privileged_actors
+    check_compatibility(config, cameras, (image_size, image_size), STATE_DIM, ACTION_DIMS[control_mode], objects)
 
 
 def policy_observation(observation: dict) -> dict:
@@ -137,7 +138,7 @@ def evaluate(
     cameras = getattr(policy.config, "cameras", None) or ["base_camera"]
     resolution = getattr(policy.config, "camera_resolution", None)
     size = image_size or (resolution[0] if resolution else 128)
-    check_compatible(policy.config, cameras, size, control_mode)  # before any simulator starts
+    check_compatible(policy.config, cameras, size, control_mode, task)  # before any simulator starts
     steps = episode_length or spec.max_steps
     env_kwargs = dict(
         task=task,

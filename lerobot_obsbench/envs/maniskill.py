@@ -27,7 +27,14 @@ import os
 import gymnasium as gym
 import numpy as np
 
-from lerobot_obsbench.envs.base_task import TaskError, asset_help, missing_assets, task_spec, to_numpy
+from lerobot_obsbench.envs.base_task import (
+    TaskError,
+    asset_help,
+    check_cameras,
+    missing_assets,
+    task_spec,
+    to_numpy,
+)
 from lerobot_obsbench.envs.perturbations import apply_scene_perturbation, camera_overrides, parse_perturbation
 from lerobot_obsbench.errors import ObsBenchError, UsageError
 from lerobot_obsbench.schema import (
@@ -210,10 +217,7 @@ class ObsBenchEnv(gym.Env):
             obs = self._make(control_mode, sensor_configs, episode_length or spec.max_steps)
         if self.perturbation and self.perturbation.kind in ("light", "background"):
             apply_scene_perturbation(self._env.unwrapped, self.perturbation)
-        available = list(obs["sensor_data"])
-        unknown = [c for c in self.cameras if c not in available]
-        if unknown:
-            raise ValueError(f"{task} has no camera {unknown}; its cameras are {available} (--env.cameras).")
+        check_cameras(spec, self.cameras, list(obs["sensor_data"]))
         self.unwrapped_ms = self._env.unwrapped
         self.device = self.unwrapped_ms.device  # where reset_all / step_all keep their tensors
         self.action_space = gym.spaces.Box(-1.0, 1.0, self.unwrapped_ms.single_action_space.shape, np.float32)

@@ -5,6 +5,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from lerobot_obsbench.errors import ObsBenchError
+
+
+class CheckpointError(ObsBenchError, ValueError):
+    """A checkpoint's files are there but cannot be read (truncated, edited by hand, written by another tool)."""
+
 
 def predict_chunk(policy, post, batch: dict):
     """The policy's whole next action chunk (n, action_dim) as a NumPy array, each action through the
@@ -28,10 +34,10 @@ def load_policy(path: str | Path, device: str = "cpu"):
 
     check_policy_path(path)
     try:
-        config = PreTrainedConfig.from_pretrained(path)
+        config = _read(path, "config.json", PreTrainedConfig.from_pretrained)
         config.device = device
-        policy = get_policy_class(config.type).from_pretrained(path, config=config).eval()
-        pre, post = make_pre_post_processors(policy.config, pretrained_path=str(path))
+        policy = _read(path, "model.safetensors", get_policy_class(config.type).from_pretrained, config=config)
+        pre, post = make_pre_post_processors(policy.eval().config, pretrained_path=str(path))
     except (LocalEntryNotFoundError, OfflineModeIsEnabled, FileNotFoundError) as err:
         if Path(str(path)).expanduser().is_dir():
             raise
@@ -43,6 +49,23 @@ def load_policy(path: str | Path, device: str = "cpu"):
             "or pass a local pretrained_model directory."
         ) from None
     return policy, pre, post
+
+
+def _read(path: str | Path, name: str, load, **kwargs):
+    """`load(path, **kwargs)`, a damaged `name` reported as a `CheckpointError` naming the file and the way out."""
+    import json
+
+    from draccus.utils import DraccusException
+    from safetensors import SafetensorError
+
+    try:
+        return load(path, **kwargs)
+    except (json.JSONDecodeError, DraccusException, SafetensorError) as err:
+        detail = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise CheckpointError(
+            f"{Path(str(path)) / name} cannot be read ({detail}): the checkpoint is damaged. Evaluate another "
+            "checkpoint of the run (its checkpoints/<step>/pretrained_model folders), or train it again."
+        ) from None
 
 
 def check_policy_path(path: str | Path) -> None:

@@ -94,6 +94,9 @@ class ObservationConfig:
     # Size of observation.privileged_state (7 per object) the oracle space `state` reads; filled in from the
     # dataset and saved (the key is kept from LeRobot's normaliser, as the sensors are). 0 for every other space.
     privileged_state_dim: int = 0
+    # Names of those values (`<object>.<component>`, schema.privileged_state_names) where the dataset has them;
+    # filled in and saved, so evaluation refuses a task whose objects are others. Empty for every other space.
+    privileged_state_names: list[str] = field(default_factory=list)
     # Calibration of cameras recorded with LeRobot's own depth feature (`observation.images.<cam>_depth`): camera ->
     # the fields of `camera_calibration.CameraCalibration`. Filled in from the dataset's meta/obsbench_cameras.json
     # (`obsbench attach-calibration`) when training starts, and saved with the checkpoint.
@@ -306,12 +309,17 @@ class ObservationConfig:
                     "pose (xyz + quaternion wxyz) at the end of the state or use --policy.frame=world."
                 )
 
-    def read_dataset_calibration(self, dataset_meta) -> None:
-        """Take the calibration of the dataset's LeRobot-recorded depth cameras from its meta/ folder (once: a
-        loaded checkpoint keeps the calibration it was trained with)."""
-        if dataset_meta is None or self.depth_calibration:
+    def read_dataset_meta(self, dataset_meta) -> None:
+        """Take from the dataset's metadata what its features do not say (once: a loaded checkpoint keeps what it
+        was trained with): the calibration of its LeRobot-recorded depth cameras (meta/ folder) and, for the
+        oracle, the names of the object-pose values."""
+        if dataset_meta is None:
             return
-        self.depth_calibration = dataset_calibration(dataset_meta)
+        if not self.depth_calibration:
+            self.depth_calibration = dataset_calibration(dataset_meta)
+        names = dataset_meta.features.get(PRIVILEGED_STATE_KEY, {}).get("names")
+        if self.obs_space in ORACLE_SPACES and not self.privileged_state_names and isinstance(names, list):
+            self.privileged_state_names = [str(name) for name in names]
 
     def dataset_reads(self, dataset_meta) -> set[str]:
         """The dataset features this policy reads in training: every feature that is not a sensor (state, action,

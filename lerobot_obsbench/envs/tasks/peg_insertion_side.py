@@ -41,6 +41,7 @@ class PegInsertionSide(Task):
     description = "insert the peg into the hole of the box from the side"
     grasped = PEG
     privileged_actors = (PEG, "box")
+    camera_names = ("base_camera", "hand_camera")  # ManiSkill runs it with the wrist-camera Panda
     sub_success = ("grasp", "align", "insert")
     expert = PegInsertionSideExpert
 

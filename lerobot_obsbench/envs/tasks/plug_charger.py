@@ -38,3 +38,4 @@ class PlugCharger(Task):
     sub_success = ("grasp",)
     expert = PlugChargerExpert
     privileged_actors = (CHARGER, "receptacle")
+    camera_names = ("base_camera", "hand_camera")  # ManiSkill runs it with the wrist-camera Panda

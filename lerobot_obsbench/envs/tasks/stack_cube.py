@@ -42,6 +42,7 @@ class StackCube(Task):
     description = "stack the red cube on the green cube"
     grasped = "cubeA"
     privileged_actors = ("cubeA", "cubeB")
+    camera_names = ("base_camera", "hand_camera")  # ManiSkill runs it with the wrist-camera Panda
     objects = {"cubeA": 0.035, "cubeB": 0.035}  # 2 cm half-size cubes
     sub_success = ("grasp",)
     expert = StackCubeExpert

@@ -22,3 +22,4 @@ class TurnFaucet(Task):
     max_steps = 200
     description = "turn the faucet handle (needs PartNet-Mobility assets)"
     asset_group = "partnet_mobility_faucet"
+    camera_names = ("base_camera", "hand_camera")  # ManiSkill runs it with the wrist-camera Panda

@@ -107,7 +107,7 @@ class ObsACTPolicy(ModelCardMixin, EnvObservationMixin, ACTPolicy):
 
     def __init__(self, config: ObsACTConfig, **kwargs):
         PreTrainedPolicy.__init__(self, config)
-        config.read_dataset_calibration(kwargs.get("dataset_meta"))
+        config.read_dataset_meta(kwargs.get("dataset_meta"))
         config.validate_features()
         self.config = config
         self.calibrated_depth = CalibratedDepth(config.depth_calibration)
