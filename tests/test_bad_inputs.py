@@ -246,7 +246,8 @@ def eval_a_checkpoint_with_a_truncated_config(root: Path) -> list[str]:
 
 
 def eval_an_oracle_on_another_tasks_objects(root: Path) -> list[str]:
-    """Used to evaluate (exit 0): the synthetic cube's pose (7 values) fed as LiftPegUpright's peg pose."""
+    """Used to be refused for the state size only, never for the objects: the synthetic cube's pose (7 values)
+    passed as LiftPegUpright's peg pose."""
     from scripts import make_synthetic_dataset as synthetic
     from tests.helpers import training_setup
 
@@ -277,6 +278,11 @@ def grid_override_lerobot_train_cannot_parse(root: Path) -> list[str]:
 def grid_with_a_camera_typo(root: Path) -> list[str]:
     """Used to be found only when the demonstrations started recording."""
     return _grid(root, "tasks: [PushCube-v1]\nobs_spaces: [rgb]\nsteps: 5\ncameras: [base_camra]\n")
+
+
+def grid_of_a_named_policy_type(root: Path) -> list[str]:
+    """README's act_pcd in a grid used to be refused as an unknown policy, with no word of what it stands for."""
+    return _grid(root, "tasks: [PushCube-v1]\nobs_spaces: [pointcloud]\nsteps: 5\npolicies: [act_pcd]\n")
 
 
 def run_with_no_workers(root: Path) -> list[str]:
@@ -477,6 +483,10 @@ ROWS = [
     (demos_of_a_camera_typo, ["cameras ['base_camra']: PushCube-v1 has no such camera", "['base_camera']"]),
     (grid_override_lerobot_train_cannot_parse, ["{'use_vae': 0}", "Couldn't parse '0' into a bool"]),
     (grid_with_a_camera_typo, ["cameras ['base_camra']: PushCube-v1 has no such camera"]),
+    (
+        grid_of_a_named_policy_type,
+        ["policies: [obs_act], obs_spaces: [pointcloud], encoders: {pointcloud: [pointnet]}"],
+    ),
     (run_with_no_workers, ["argument --workers: must be >= 1, got 0"]),
     (calibrate_cameras_with_no_views, ["argument --views: must be >= 1, got 0"]),
     (refine_cameras_with_an_overlap_above_one, ["argument --min-overlap: must be a number in (0, 1], got 30"]),
@@ -616,3 +626,69 @@ def test_doctor_and_find_cameras_report_without_a_traceback(tmp_path, capsys):
     assert main(["find-cameras"]) == 0
     out = capsys.readouterr()
     assert "no RealSense camera found" in out.out and "Traceback" not in out.out + out.err
+
+
+def _hints() -> list[tuple[str, str]]:
+    """Every `obsbench COMMAND ...` the package's strings hold (messages, help, docstrings), as (file, text): f-string
+    fields become X, a `(A | B)` choice its first alternative, and the command ends where the prose does."""
+    import ast
+    import re
+
+    import lerobot_obsbench
+
+    package = Path(lerobot_obsbench.__file__).parent
+    hints = []
+    for path in sorted(package.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.JoinedStr):
+                text = "".join(v.value if isinstance(v, ast.Constant) else "X" for v in node.values)
+            elif isinstance(node, ast.Constant) and isinstance(node.value, str):
+                text = node.value
+            else:
+                continue
+            text = re.sub(r"\(([^()|]*?)\s*\|[^()]*\)", r"\1", text.replace("\\\n", " "))
+            for match in re.finditer(r"(?<![\w.])obsbench ([a-z][a-z0-9-]*)((?: +[^\s;,`()'\"]+)*)", text):
+                words = match.group(2).split()
+                while words and (words[-1].endswith(".") and not words[-1].startswith("-") or not words[-1]):
+                    words.pop()  # the sentence's full stop
+                hints.append((path.name, " ".join([match.group(1), *words])))
+    return sorted(set(hints))
+
+
+def test_every_command_the_package_prints_parses_as_printed():
+    """A hint such as `obsbench attach-calibration DATASET --camera front` (the command takes --root DATASET) used to
+    fail when run as printed: every command the package's messages and help name is parsed by its own parser, with
+    each placeholder as a value. Options it does not have and stray positionals fail; a missing required option
+    does not (a hint may name one option of several)."""
+    import contextlib
+    import io
+    import re
+
+    from lerobot_obsbench.cli import build_parser
+    from lerobot_obsbench.commands import common
+
+    parser = build_parser()
+    commands = parser._subparsers._group_actions[0].choices
+    for command in commands.values():  # a hint may name one option of several required ones
+        for action in command._actions:
+            action.required = False
+        for group in command._mutually_exclusive_groups:
+            group.required = False
+    hints = _hints()
+    assert any(text.startswith("attach-calibration --root") for _, text in hints)  # the scan finds the hints
+    wrong = []
+    for where, text in hints:
+        words = [word.split("|")[0] for word in text.split()]  # a|b: a choice of values
+        if words[0] not in commands:
+            if words[0] not in ("import", "with"):  # Python's `from lerobot_obsbench import`, prose
+                wrong.append(f"{where}: obsbench {text}: no such command")
+            continue
+        err = io.StringIO()
+        with contextlib.redirect_stderr(err), contextlib.suppress(SystemExit):
+            common.parse(parser, words)
+        refused = [line for line in err.getvalue().splitlines() if "error:" in line]
+        mention = refused and refused[0].endswith(f"argument {words[-1]}: expected one argument")  # names an option
+        placeholder = refused and re.search(r"got '[A-Z_]+'$", refused[0])  # a typed option's placeholder value
+        if refused and not mention and not placeholder:
+            wrong.append(f"{where}: obsbench {text}: {refused[0]}")
+    assert not wrong, "\n".join(wrong)

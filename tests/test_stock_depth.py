@@ -288,3 +288,22 @@ def test_view_of_an_uncalibrated_stock_dataset_names_the_command(tmp_path, capsy
     assert main(["view", "--root", str(fresh), "--out", str(tmp_path / "v.rrd")]) == 2
     err = capsys.readouterr().err
     assert "has no calibration" in err and "obsbench attach-calibration --root DATASET --camera front" in err
+
+
+def test_the_documented_calibration_example_is_what_attach_calibration_reads():
+    """docs/real-robot.md's --from-json example holds exactly the fields the code reads, each valid for its frame."""
+    import re
+    from pathlib import Path
+
+    from lerobot_obsbench.camera_calibration import CameraCalibration
+    from lerobot_obsbench.datasets.validation import intrinsics_off
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "real-robot.md").read_text()
+    section = doc.split("### The calibration files, field by field", 1)[1]
+    example = json.loads(re.search(r"```json\n(.*?)```", section, re.S).group(1))
+    documented = set(re.findall(r"^\| `(\w+)` \|", section, re.M))
+    assert set(example) <= documented
+    assert documented | {"color_size", "depth_size"} == set(CameraCalibration.__dataclass_fields__)
+    calibration = CameraCalibration.from_dict({**example, "color_size": [480, 640], "depth_size": [480, 640]})
+    for K in (calibration.color_intrinsics, calibration.depth_intrinsics):
+        assert not intrinsics_off(np.array(K), (480, 640)).any()

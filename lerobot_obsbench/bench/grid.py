@@ -198,6 +198,19 @@ def _as_list(value, name: str) -> list:
     return values
 
 
+def _named_policies_in_grid_terms(policies: list, name: str) -> None:
+    """A named type (act_pcd, ...) is one policy type, space and encoder; a grid lists those on their own axes."""
+    from lerobot_obsbench.policies.named import NAMED_POLICIES
+
+    named = next((p for p in policies if p in NAMED_POLICIES), None)
+    if named is not None:
+        policy, space, encoder = NAMED_POLICIES[named]
+        raise GridError(
+            f"{name}: policies lists {named}, a named type; a grid sets its parts on their own axes: "
+            f"policies: [{policy}], obs_spaces: [{space}], encoders: {{{space}: [{encoder}]}}"
+        )
+
+
 def _choose(values: list, valid, name: str) -> list:
     bad = [v for v in values if v not in valid]
     if bad:
@@ -473,7 +486,9 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
                 f"{name}: {', '.join(given)} only apply to RLBench tasks (rlbench/<task>); the grid has none"
             )
     spaces = _choose(_as_list(values.get("obs_spaces"), "obs_spaces"), list(OBS_SPACES), "obs_spaces")
-    policies = _choose(_as_list(values.get("policies", ["obs_act"]), "policies"), list(POLICY_TYPES), "policies")
+    policies = _as_list(values.get("policies", ["obs_act"]), "policies")
+    _named_policies_in_grid_terms(policies, name)
+    _choose(policies, list(POLICY_TYPES), "policies")
     preset = values.get("preset", "cpu")
     _choose([preset], list(PRESETS), "preset")
     for key in PER_POLICY:

@@ -23,8 +23,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--serial", help="read intrinsics and depth->colour extrinsics from this connected RealSense")
     source.add_argument("--from-recording", help="read them from a RealSense recording (.bag) of the same streams")
-    source.add_argument("--from-json", help="read them from a JSON object of CameraCalibration fields")
-    p.add_argument("--cam2world", help="the camera pose: obsbench calibrate-cameras' saved file or a 4x4 JSON matrix")
+    source.add_argument(
+        "--from-json",
+        help="read them from a JSON object: color_intrinsics, depth_intrinsics (3x3, pixel centres at integers), "
+        "depth_to_color (4x4, metres) and optionally cam2world, depth_unit_mm, depth_min_mm (every field, its frame "
+        "and an example: docs/real-robot.md, 'The calibration files, field by field')",
+    )
+    p.add_argument(
+        "--cam2world",
+        help="the colour camera's pose in the world frame (4x4, metres): obsbench calibrate-cameras' saved file or a "
+        "bare 4x4 JSON matrix",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
