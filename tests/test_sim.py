@@ -768,3 +768,28 @@ def test_each_task_renders_the_cameras_it_declares(task):
         assert sorted(env.unwrapped_ms._sensors) == sorted(task_spec(task).camera_names)
     finally:
         env.close()
+
+
+def test_an_env_for_a_policy_that_reads_no_camera_renders_none_and_steps_the_same():
+    """The blind and oracle controls' evaluations render no camera (a quarter of the time here); their episodes are
+    the ones a rendering env gives: the same state, object poses and success after the same actions."""
+    envs = [ObsBenchEnv("PushCube-v1", cameras=cameras, image_size=32) for cameras in ([], ["base_camera"])]
+    actions = np.random.default_rng(0).uniform(-1, 1, (12, *envs[0].action_space.shape)).astype(np.float32)
+    try:
+        runs = []
+        for env in envs:
+            obs, _ = env.reset(seed=7)
+            trace = [(obs["agent_pos"], obs["robot_state"]["privileged_state"])]
+            for action in actions:
+                obs, _, _, _, info = env.step(action)
+                trace.append((obs["agent_pos"], obs["robot_state"]["privileged_state"], info["is_success"]))
+            runs.append((obs, trace))
+        (blind_obs, blind_trace), (seeing_obs, seeing_trace) = runs
+        assert blind_obs["pixels"] == {} and not any(k.startswith("depth.") for k in blind_obs["robot_state"])
+        assert "base_camera" in seeing_obs["pixels"]
+        for blind_step, seeing_step in zip(blind_trace, seeing_trace, strict=True):
+            for a, b in zip(blind_step, seeing_step, strict=True):
+                np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    finally:
+        for env in envs:
+            env.close()

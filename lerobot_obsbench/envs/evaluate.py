@@ -135,7 +135,9 @@ def evaluate(
     slots = min(batch_size, len(seeds))
     sim = choose_sim_backend(sim_backend, device, slots, perturbation)
     policy, pre, post = load_policy(policy_path, device)
-    cameras = getattr(policy.config, "cameras", None) or ["base_camera"]
+    # the plugin's policies name the cameras they read (none for the blind and oracle controls, which then render
+    # nothing); a stock policy reads the task camera
+    cameras = list(policy.config.cameras) if hasattr(policy.config, "obs_space") else ["base_camera"]
     resolution = getattr(policy.config, "camera_resolution", None)
     size = image_size or (resolution[0] if resolution else 128)
     check_compatible(policy.config, cameras, size, control_mode, task)  # before any simulator starts

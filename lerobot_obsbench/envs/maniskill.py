@@ -217,7 +217,8 @@ class ObsBenchEnv(gym.Env):
             obs = self._make(control_mode, sensor_configs, episode_length or spec.max_steps)
         if self.perturbation and self.perturbation.kind in ("light", "background"):
             apply_scene_perturbation(self._env.unwrapped, self.perturbation)
-        check_cameras(spec, self.cameras, list(obs["sensor_data"]))
+        if self.cameras:
+            check_cameras(spec, self.cameras, list(obs["sensor_data"]))
         self.unwrapped_ms = self._env.unwrapped
         self.device = self.unwrapped_ms.device  # where reset_all / step_all keep their tensors
         self.action_space = gym.spaces.Box(-1.0, 1.0, self.unwrapped_ms.single_action_space.shape, np.float32)
@@ -248,7 +249,7 @@ class ObsBenchEnv(gym.Env):
         try:
             self._env = gym.make(
                 self.spec_.env_id,
-                obs_mode="rgb+depth",
+                obs_mode="rgb+depth" if self.cameras else "state_dict",  # a policy that reads no camera renders none
                 control_mode=control_mode,
                 render_mode="rgb_array",
                 sensor_configs=sensor_configs,
