@@ -223,6 +223,22 @@ def refine_cameras_inverted_workspace(root: Path) -> list[str]:
     return ["refine-cameras", "--playback", "a.bag", "b.bag", "--workspace", "0", "0", "-1", "1", "0", "1"]
 
 
+def eval_videos_into_a_file(root: Path) -> list[str]:
+    """Used to be found after every episode had run, when the first video was written."""
+    (root / "videos").write_text("a file, not a folder\n")
+    return [*_eval(root / "e.json"), "--videos", str(root / "videos")]
+
+
+def view_a_recording_that_is_not_there(root: Path) -> list[str]:
+    """Used to end in librealsense's RuntimeError traceback."""
+    return ["view", "--playback", str(root / "missing.bag"), "--out", str(root / "v.rrd")]
+
+
+def view_a_camera_that_is_not_connected(root: Path) -> list[str]:
+    """Used to end in a ConnectionError traceback."""
+    return ["view", "--serial", "123456789", "--out", str(root / "v.rrd")]
+
+
 def eval_on_a_gpu_this_machine_lacks(root: Path) -> list[str]:
     """Used to fail after the policy loaded, in torch."""
     return [*_eval(root / "e.json"), "--policy.device", "cuda:99"]
@@ -474,6 +490,9 @@ ROWS = [
     (view_out_over_the_datasets_metadata, ["--out", "info.json would write over this command's input"]),
     (report_into_a_dataset, ["--out", "is inside the LeRobot dataset", "write outputs outside datasets"]),
     (view_ply_over_an_existing_file, ["--ply", "cloud.ply already exists; add --overwrite"]),
+    (eval_videos_into_a_file, ["--videos", "videos is a file; give a folder"]),
+    (view_a_recording_that_is_not_there, ["RealSense recording", "missing.bag not found"]),
+    (view_a_camera_that_is_not_connected, ["No RealSense camera with serial '123456789'", "obsbench find-cameras"]),
     (eval_on_a_gpu_this_machine_lacks, ["argument --policy.device: cuda:99:", "give cpu"]),
     (eval_on_a_device_that_does_not_exist, ["argument --policy.device: 'gpu' is not a torch device"]),
     (eval_with_a_negative_episode_length, ["argument --env.episode_length: must be >= 1, got -5"]),

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from lerobot_obsbench.commands import common
 from lerobot_obsbench.commands.common import frame_size, positive_int
-from lerobot_obsbench.outputs import check_output_file
+from lerobot_obsbench.outputs import check_output_file, check_output_folder
 
 NAME = "eval"
 HELP = "success rate of a checkpoint on the task's fixed held-out seeds 0..N-1"
@@ -78,6 +78,8 @@ def run(args: argparse.Namespace) -> int:
     parse_perturbation(args.perturbation)  # a typo fails before the policy and the simulator load
     if args.out is not None:
         check_output_file(args.out, "--out", args.overwrite)  # before the episodes it would hold
+    if args.videos is not None:
+        check_output_folder(args.videos, "--videos", inputs=[Path(args.policy_path)])
 
     result = evaluate(
         args.policy_path,

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import logging
 import time
+from pathlib import Path
 from threading import Event, Lock, Thread
 from typing import Any
 
@@ -31,6 +32,7 @@ import torch
 from lerobot.cameras.camera import Camera
 from lerobot.utils.decorators import check_if_already_connected, check_if_not_connected
 
+from lerobot_obsbench.errors import ObsBenchError
 from lerobot_obsbench.geometry import register_depth
 from lerobot_obsbench.robots.realsense.config_realsense_rgbd import SYNC_MODES, RealSenseRGBDCameraConfig
 
@@ -100,6 +102,10 @@ def extrinsic_matrix(extrinsics) -> np.ndarray:
 REGISTRATION_STEPS = 1
 
 
+class CameraNotFoundError(ObsBenchError, ConnectionError):
+    """The camera named by serial number, or the recording named by path, is not there."""
+
+
 class RealSenseRGBDCamera(Camera):
     """See the module docstring. `read()` / `async_read()` / `read_latest()` return colour (H, W, 3) uint8 like any
     LeRobot camera; `read_rgbd()` / `async_read_rgbd()` return (colour, depth (H, W, 1) uint16 mm) of one frameset.
@@ -152,14 +158,19 @@ class RealSenseRGBDCamera(Camera):
         rs = import_realsense()
         cfg = self.config
         if cfg.playback_file:
-            device = rs.context().load_device(cfg.playback_file)
+            if not Path(cfg.playback_file).expanduser().is_file():
+                raise CameraNotFoundError(
+                    f"RealSense recording {cfg.playback_file} not found (record one with the RealSense Viewer or "
+                    "rs-record; .bag)"
+                )
+            device = rs.context().load_device(str(Path(cfg.playback_file).expanduser()))
             playback = device.as_playback()
             playback.set_real_time(cfg.playback_real_time)
             playback.pause()  # until both streams feed the syncer, so the first frameset is paired like the rest
         else:
             serials = [c["id"] for c in self.find_cameras()]
             if cfg.serial_number not in serials:
-                raise ConnectionError(
+                raise CameraNotFoundError(
                     f"No RealSense camera with serial {cfg.serial_number!r}; connected: {serials or 'none'}. "
                     "Check the USB 3 cable, or run `obsbench find-cameras`."
                 )
