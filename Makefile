@@ -20,7 +20,8 @@ $(STAMP): pyproject.toml scripts/setup_system.sh
 install: $(STAMP)
 
 # README main job: the `quick` benchmark grid (demos -> lerobot-train -> eval on held-out seeds -> report).
-# Two units at a time, one thread each: on 2 cores that nearly doubles throughput (data loading is serial).
+# Two units at a time, one thread each: a second unit doubles throughput, a second thread for one unit does far
+# less (docs/performance.md).
 # Resumable: rerunning after an interruption skips finished runs.
 main: $(STAMP)
 	$(BIN)/obsbench run quick --out outputs/bench/quick --workers 2

@@ -225,10 +225,10 @@ def preset_rows(
     return rows, skipped
 
 
-def grid_rows(grid_name: str, device: torch.device, repeats: int) -> list[dict]:
+def grid_rows(grid_name: str, device: torch.device, repeats: int, threads: list[int] | None = None) -> list[dict]:
     """One row per training run of a grid (the first seed and learning rate of each method): its policy built as
     the grid's lerobot-train call builds it (preset, task crop box, overrides), timed at the run's batch and image
-    size."""
+    size; with `threads`, one row per CPU thread count, the counts of one policy timed one after the other."""
     from lerobot_obsbench.bench.grid import load_grid, task_overrides
 
     runs = {run.method: run for run in reversed(load_grid(grid_name).expand())}
@@ -251,21 +251,27 @@ def grid_rows(grid_name: str, device: torch.device, repeats: int) -> list[dict]:
         horizon = cfg.chunk_size if kind == "act" else cfg.horizon
         n_obs = None if kind == "act" else cfg.n_obs_steps
         frames = cluttered_frames(synthetic, run.batch_size, run.image_size)
-        t = step_time(policy, make_batch(frames, run.batch_size, horizon, n_obs, device), repeats)
-        rows.append(
-            {
-                "grid": grid_name,
-                "policy": run.policy,
-                "obs_space": run.obs_space,
-                "encoder": run.encoder,
-                "batch": run.batch_size,
-                "image_size": run.image_size,
-                "params_M": params_millions(policy),
-                **t,
-                "samples_per_s": round(t["steps_per_s"] * run.batch_size, 1),
-            }
-        )
-        print(f"{grid_name} {run.method:32s}: {t['median_ms']:.1f} ms, {t['steps_per_s']} steps/s")
+        batch = make_batch(frames, run.batch_size, horizon, n_obs, device)
+        for count in threads or [torch.get_num_threads()]:
+            torch.set_num_threads(count)
+            t = step_time(policy, batch, repeats)
+            rows.append(
+                {
+                    "grid": grid_name,
+                    "policy": run.policy,
+                    "obs_space": run.obs_space,
+                    "encoder": run.encoder,
+                    "batch": run.batch_size,
+                    "image_size": run.image_size,
+                    "threads": count,
+                    "params_M": params_millions(policy),
+                    **t,
+                    "samples_per_s": round(t["steps_per_s"] * run.batch_size, 1),
+                }
+            )
+            print(
+                f"{grid_name} {run.method:32s} {count} thread(s): {t['median_ms']:.1f} ms, {t['steps_per_s']} steps/s"
+            )
         del policy
         release(device)
     return rows
@@ -286,12 +292,15 @@ def main() -> None:
     parser.add_argument("--preset", default="cpu", choices=["cpu", "paper"])
     parser.add_argument("--grid", help="time every run of this grid (preset name or file) instead of --preset")
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--threads", type=int, nargs="+", help="--grid: time each run at these CPU thread counts")
     parser.add_argument("--out", type=Path)
     args = parser.parse_args()
     device = torch.device(args.device)
     prepare(device)
+    if args.threads and not args.grid:
+        parser.error("--threads goes with --grid")
     if args.grid:
-        rows = grid_rows(args.grid, device, args.repeats)
+        rows = grid_rows(args.grid, device, args.repeats, args.threads)
         name = Path(args.grid).name.removesuffix(".yaml")
         write(f"train_step_{device.type}_grid_{name}", {"grid": args.grid, "rows": rows}, args.out)
         return
