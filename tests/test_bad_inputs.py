@@ -508,7 +508,10 @@ ROWS = [
     ),
     (run_with_no_workers, ["argument --workers: must be >= 1, got 0"]),
     (calibrate_cameras_with_no_views, ["argument --views: must be >= 1, got 0"]),
-    (refine_cameras_with_an_overlap_above_one, ["argument --min-overlap: must be a number in (0, 1], got 30"]),
+    (
+        refine_cameras_with_an_overlap_above_one,
+        ["argument --min-overlap: must be a finite number > 0 and <= 1, got 30"],
+    ),
     (grid_with_a_duplicated_key, ["'steps' is given twice (lines 3 and 4)"]),
     (grid_with_held_out_demos_in_words, ["held_out_demos", "whole number"]),
     (grid_with_negative_held_out_demos, ["held_out_demos", ">= 0"]),

@@ -43,15 +43,28 @@ positive_int = whole_number(1)  # counts, sizes, rates
 non_negative_int = whole_number(0)  # indices
 
 
-def positive_float(text: str) -> float:
-    """argparse type: a finite number > 0 (a size, a distance, an angle)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
-    return value
+def real_number(minimum: float, inclusive: bool, maximum: float = math.inf):
+    """argparse type: a finite number above `minimum` (or equal to it when `inclusive`), at most `maximum`."""
+    wanted = f"a finite number {'>=' if inclusive else '>'} {minimum:g}" + (
+        f" and <= {maximum:g}" if math.isfinite(maximum) else ""
+    )
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}") from None
+        above = value >= minimum if inclusive else value > minimum
+        if not (math.isfinite(value) and above and value <= maximum):
+            raise argparse.ArgumentTypeError(f"must be {wanted}, got {text}")
+        return value
+
+    return parse
+
+
+positive_float = real_number(0, inclusive=False)  # a size, a distance, an angle
+non_negative_float = real_number(0, inclusive=True)  # a wait
+fraction = real_number(0, inclusive=False, maximum=1)  # a share
 
 
 def device_name(text: str) -> str:
@@ -81,28 +94,6 @@ def torch_device(text: str) -> str:
     elif device.type == "mps" and not torch.backends.mps.is_available():
         raise argparse.ArgumentTypeError(f"{text}: Apple's MPS is not available here; give cpu")
     return text
-
-
-def fraction(text: str) -> float:
-    """argparse type: a number in (0, 1]."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in (0, 1], got {text!r}") from None
-    if not 0 < value <= 1:
-        raise argparse.ArgumentTypeError(f"must be a number in (0, 1], got {text}")
-    return value
-
-
-def non_negative_float(text: str) -> float:
-    """argparse type: a finite number >= 0 (a wait)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
-    return value
 
 
 def crop_box_argument(workspace: list[float] | None, flag: str = "--workspace") -> None:
