@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from lerobot_obsbench.geometry import rigidity_error
-from lerobot_obsbench.schema import SchemaError
+from lerobot_obsbench.schema import SchemaError, stock_depth_cameras
 from lerobot_obsbench.spaces import RIGID_TOLERANCE
 
 CALIBRATION_FILE = Path("meta") / "obsbench_cameras.json"
@@ -146,3 +146,11 @@ def write_calibration(root: str | Path, cameras: dict[str, CameraCalibration]) -
     tmp.write_text(json.dumps({"version": FORMAT_VERSION, "cameras": merged}, indent=1) + "\n")
     os.replace(tmp, path)
     return path
+
+
+def dataset_calibration(dataset_meta) -> dict[str, dict]:
+    """The attached calibration (CameraCalibration fields) of each camera the dataset recorded LeRobot depth for."""
+    if getattr(dataset_meta, "root", None) is None:
+        return {}
+    calibration = read_calibration(dataset_meta.root)
+    return {cam: calibration[cam].to_dict() for cam in stock_depth_cameras(dataset_meta.features) if cam in calibration}

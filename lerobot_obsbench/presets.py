@@ -134,10 +134,14 @@ def model_sizes(preset: str, policy_type: str) -> dict[str, object]:
     return _merged(preset, policy_type, ("all",))
 
 
+def cli_value(value) -> str:
+    """A field's value as lerobot-train's command line takes it (a list as `[a,b]`)."""
+    return "[" + ",".join(str(v) for v in value) + "]" if isinstance(value, (list, tuple)) else str(value)
+
+
 def preset_args(preset: str, policy_type: str, obs_space: str, encoder: str | None = None) -> list[str]:
     """`--policy.<field>=<value>` arguments for stock lerobot-train."""
-    args = []
-    for name, value in preset_overrides(preset, policy_type, obs_space, encoder).items():
-        text = "[" + ",".join(str(v) for v in value) + "]" if isinstance(value, list) else str(value)
-        args.append(f"--policy.{name}={text}")
-    return args
+    return [
+        f"--policy.{name}={cli_value(value)}"
+        for name, value in preset_overrides(preset, policy_type, obs_space, encoder).items()
+    ]

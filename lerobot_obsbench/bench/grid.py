@@ -35,7 +35,7 @@ from lerobot_obsbench.envs.base_task import TASKS, TaskError, check_cameras, tas
 from lerobot_obsbench.envs.maniskill import DEFAULT_CONTROL_MODE
 from lerobot_obsbench.envs.perturbations import parse_perturbation
 from lerobot_obsbench.errors import ObsBenchError
-from lerobot_obsbench.presets import PRESETS, preset_args, preset_encoder
+from lerobot_obsbench.presets import PRESETS, cli_value, preset_args, preset_encoder
 from lerobot_obsbench.rlbench.evaluate import MAX_STEPS as RLBENCH_MAX_STEPS
 from lerobot_obsbench.rlbench.evaluate import camera_view_for
 from lerobot_obsbench.rlbench.paper_tasks import CAMERAS as RLBENCH_CAMERAS
@@ -124,7 +124,7 @@ class RunSpec:
             *sizes,
             f"--policy.encoder={self.encoder}",
             f"--policy.cameras=[{','.join(self.cameras)}]",
-            *(f"--policy.{k}={_cli_value(v)}" for k, v in self.policy_overrides),
+            *(f"--policy.{k}={cli_value(v)}" for k, v in self.policy_overrides),
             f"--policy.optimizer_lr={self.lr}",
         ]
 
@@ -183,10 +183,6 @@ class EvalSpec:
     @property
     def eval_id(self) -> str:
         return _digest(self.config())
-
-
-def _cli_value(value) -> str:
-    return "[" + ",".join(str(v) for v in value) + "]" if isinstance(value, (list, tuple)) else str(value)
 
 
 def _as_list(value, name: str) -> list:

@@ -111,11 +111,10 @@ def impossible_counts(record: dict) -> str | None:
     """What is impossible in an eval record's counts (None: nothing): episodes a whole number >= 1, successes a
     whole number in 0..episodes, success_rate (where given) a finite number in [0, 1], and the per-seed outcomes
     (where given) one per episode, as many successes as `successes` says."""
-    whole = _whole
     episodes, successes = record["episodes"], record["successes"]
-    if not whole(episodes) or episodes < 1:
+    if not _whole(episodes) or episodes < 1:
         return f"episodes = {episodes!r} is not a whole number >= 1"
-    if not whole(successes) or not 0 <= successes <= episodes:
+    if not _whole(successes) or not 0 <= successes <= episodes:
         return f"successes = {successes!r} is not a whole number in 0..{episodes}"
     rate = record.get("success_rate")
     if rate is not None and not (

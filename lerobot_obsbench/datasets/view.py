@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lerobot_obsbench.camera_calibration import read_calibration
+from lerobot_obsbench.camera_calibration import dataset_calibration
 from lerobot_obsbench.errors import UsageError
 from lerobot_obsbench.schema import (
     ATTACH_CALIBRATION_HINT,
@@ -46,9 +46,11 @@ def dataset_frame(root: str | Path, index: int, repo_id: str = "local/dataset") 
     item = {key: value for key, value in dataset[index].items() if isinstance(value, torch.Tensor)}
     stock = stock_depth_cameras(dataset.meta.features)
     if stock:
-        calibration = {cam: entry.to_dict() for cam, entry in read_calibration(root).items() if cam in stock}
-        registered = CalibratedDepth(calibration)({key: value[None] for key, value in item.items()})
-        item = {key: value[0] for key, value in registered.items() if key not in map(stock_depth_key, stock)}
+        registered = CalibratedDepth(dataset_calibration(dataset.meta))(
+            {key: value[None] for key, value in item.items()}
+        )
+        stock_keys = {stock_depth_key(cam) for cam in stock}
+        item = {key: value[0] for key, value in registered.items() if key not in stock_keys}
         if not any(key.startswith(depth_key("")) for key in item):
             raise SchemaError(
                 f"{root}: LeRobot's own depth of camera {stock[0]!r} has no calibration, so it has no points to show; "

@@ -10,7 +10,7 @@ from typing import ClassVar
 
 from lerobot.optim.optimizers import AdamWConfig
 
-from lerobot_obsbench.camera_calibration import read_calibration
+from lerobot_obsbench.camera_calibration import dataset_calibration
 from lerobot_obsbench.encoders import (
     EncoderContext,
     available_encoders,
@@ -39,7 +39,6 @@ from lerobot_obsbench.schema import (
     check_obs_space,
     is_sensor_key,
     sensor_keys,
-    stock_depth_cameras,
     stock_depth_key,
     validate_features,
     with_calibrated_depth,
@@ -59,14 +58,6 @@ ENCODER_FIELDS = {
     "point_pipeline": "pipeline",
 }
 POINT_CHOICES = ("point_features", "sampling", "num_tokens", "knn", "point_pipeline")
-
-
-def dataset_calibration(dataset_meta) -> dict[str, dict]:
-    """The attached calibration (CameraCalibration fields) of each camera the dataset recorded LeRobot depth for."""
-    if getattr(dataset_meta, "root", None) is None:
-        return {}
-    calibration = read_calibration(dataset_meta.root)
-    return {cam: calibration[cam].to_dict() for cam in stock_depth_cameras(dataset_meta.features) if cam in calibration}
 
 
 def _plain(value):
