@@ -31,6 +31,7 @@ import torch
 from torch import Tensor, nn
 
 from lerobot_obsbench import geometry
+from lerobot_obsbench.augmentations import Augmenter, parse_augment
 from lerobot_obsbench.schema import (
     BLIND_SPACES,
     CONTROL_SPACES,
@@ -89,6 +90,7 @@ class ObservationAdapter(nn.Module):
         point_pipeline: str = "plugin",
         workspace_jitter: float = 0.0,
         point_normalization: str = "metres",
+        augment: str = "",
     ):
         super().__init__()
         if not cameras and obs_space not in CONTROL_SPACES:
@@ -109,6 +111,7 @@ class ObservationAdapter(nn.Module):
         if workspace_jitter < 0:
             raise ValueError(f"workspace_jitter must be >= 0 metres; got {workspace_jitter}")
         self.workspace_jitter = float(workspace_jitter)
+        self.augment = Augmenter(parse_augment(augment, self.obs_space))
         self.frames_seen, self.frames_empty, self._next_warning = 0, 0, 1  # empty-cloud bookkeeping
         self.register_buffer("rgb_mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("rgb_std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
@@ -195,7 +198,7 @@ class ObservationAdapter(nn.Module):
         for cam in self.cameras:
             channels = []
             if self.obs_space in ("rgb", "rgbd", "pointmap"):
-                channels.append((self._rgb(batch, cam) - self.rgb_mean) / self.rgb_std)
+                channels.append((self.augment.colour(self._rgb(batch, cam)) - self.rgb_mean) / self.rgb_std)
             if self.obs_space in ("depth", "rgbd"):
                 channels.append(self._scaled_depth(self._depth_m(batch, cam))[:, None])
             if self.obs_space == "pointmap":
@@ -207,12 +210,14 @@ class ObservationAdapter(nn.Module):
                     points = (points - 0.5) / 0.5
                 channels.append(points.permute(0, 3, 1, 2))
             per_camera.append(torch.cat(channels, dim=1))
-        return torch.stack(per_camera, dim=1)
+        return self.augment.image(torch.stack(per_camera, dim=1))
 
     def _pointcloud(self, batch: dict, ee_pose: Tensor | None) -> PointCloud:
         jitter = self.workspace_jitter if self.training else 0.0
-        # only the pixels that can land in the box (widened by the jitter) are unprojected: the same points
-        widest = [bound + (jitter if i % 2 else -jitter) for i, bound in enumerate(self.workspace)]
+        # only the pixels that can land in the box (widened by the jitter and by how far the point augmentations
+        # can move a point into it) are unprojected: the same points
+        margin = jitter + self.augment.point_reach(self.workspace)
+        widest = [bound + (margin if i % 2 else -margin) for i, bound in enumerate(self.workspace)]
         xyz, rgb, valid = [], [], []
         for cam in self.cameras:
             depth_m = self._depth_m(batch, cam)
@@ -236,6 +241,7 @@ class ObservationAdapter(nn.Module):
         box = torch.tensor(self.workspace, dtype=xyz.dtype, device=xyz.device)
         if jitter > 0:  # each bound moves by up to ±jitter, per sample
             box = box + (torch.rand(len(xyz), 6, device=xyz.device, dtype=xyz.dtype) * 2 - 1) * jitter
+        xyz, valid = self.augment.points(xyz, valid, box)
         valid = geometry.crop_mask(xyz, valid, box)
         empty = ~valid.any(dim=1)
         self._count_empty(int(empty.sum()), len(empty))

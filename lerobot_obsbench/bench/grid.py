@@ -62,6 +62,7 @@ AXIS_FIELDS = {
     "type": "policies",
     "obs_space": "obs_spaces",
     "encoder": "encoders",
+    "augment": "augmentations",
     "optimizer_lr": "learning_rates",
     "cameras": "cameras",
     "device": "`obsbench run --device`",
@@ -98,13 +99,16 @@ class RunSpec:
     policy_overrides: tuple[tuple[str, object], ...] = ()
     # RLBench: the text encoder of the language goal the demonstrations carry ("" = none)
     language_goal: str = ""
+    # the training augmentation recipe (`--policy.augment`; "" = none)
+    augment: str = ""
 
     def config(self) -> dict:
         data = asdict(self)
         data["cameras"] = list(self.cameras)
         data["policy_overrides"] = dict(self.policy_overrides)
-        if not self.language_goal:  # a field added later: left out at its default, so older runs keep their ids
-            del data["language_goal"]
+        for name in ("language_goal", "augment"):  # added later: left out at their default, so older runs keep ids
+            if not data[name]:
+                del data[name]
         return data
 
     @property
@@ -125,13 +129,14 @@ class RunSpec:
             f"--policy.encoder={self.encoder}",
             f"--policy.cameras=[{','.join(self.cameras)}]",
             *(f"--policy.{k}={cli_value(v)}" for k, v in self.policy_overrides),
+            *([f"--policy.augment={self.augment}"] if self.augment else []),
             f"--policy.optimizer_lr={self.lr}",
         ]
 
     @property
     def method(self) -> str:
-        """Column label in reports: what differs between the compared methods."""
-        return f"{self.policy}/{self.obs_space}/{self.encoder}"
+        """Column label in reports: what differs between the compared methods (the recipe, where there is one)."""
+        return f"{self.policy}/{self.obs_space}/{self.encoder}" + (f"/{self.augment}" if self.augment else "")
 
     @property
     def demo_key(self) -> str:
@@ -227,6 +232,9 @@ class Grid:
     demos: list[int]
     preset: str = "cpu"
     encoders: dict[str, list[str]] = field(default_factory=dict)  # obs_space -> encoders
+    # obs_space -> training augmentation recipes (`--policy.augment`; "" = none), each a method of its own in the
+    # report; a space not listed trains without augmentation
+    augmentations: dict[str, list[str]] = field(default_factory=dict)
     # training budget: exactly one unit per policy (module docstring); a number or a mapping policy -> number
     steps: float | dict[str, float] | None = None
     samples: float | dict[str, float] | None = None
@@ -285,7 +293,7 @@ class Grid:
             unit, budget = self.budget(policy)
             overrides = {**task_overrides(task, space), **self.policy_overrides, **variant}
             rlbench = grid_task_name(task) is not None
-            for encoder in self.encoders[space]:
+            for encoder, augment in itertools.product(self.encoders[space], self.augmentations.get(space, [""])):
                 runs.append(
                     RunSpec(
                         task=task,
@@ -304,6 +312,7 @@ class Grid:
                         control_mode=RLBENCH_CONTROL_MODE if rlbench else self.control_mode,
                         policy_overrides=tuple(sorted(overrides.items())),
                         language_goal=CLIP_GOAL if rlbench and self.clip_weights else "",
+                        augment=augment,
                     )
                 )
         return runs
@@ -385,6 +394,34 @@ def _resolve_encoders(spec, spaces: list[str], preset: str) -> dict[str, list[st
                 f"encoder {name!r} accepts none of the grid's obs_spaces {spaces} (it accepts "
                 f"{', '.join(encoder_info(name).spaces)})"
             )
+    return resolved
+
+
+def _resolve_augmentations(spec, spaces: list[str], name: str) -> dict[str, list[str]]:
+    """`augmentations`: a mapping space -> recipes (`--policy.augment` values, "" or null for none), each recipe
+    checked against its space."""
+    from lerobot_obsbench.augmentations import AugmentationError, parse_augment
+
+    if spec is None:
+        return {}
+    if not isinstance(spec, dict):
+        raise GridError(f"{name}: augmentations maps spaces to recipes, e.g. {{rgb: ['', random_shift]}}; got {spec!r}")
+    extra = [s for s in spec if s not in spaces]
+    if extra:
+        raise GridError(f"{name}: augmentations names spaces {extra} that are not in obs_spaces {spaces}")
+    resolved = {}
+    for space, recipes in spec.items():
+        recipes = ["" if r is None else r for r in _as_list(recipes, f"augmentations.{space}")]
+        for recipe in recipes:
+            if not isinstance(recipe, str):
+                raise GridError(f"{name}: augmentations.{space} lists recipes as text; got {recipe!r}")
+            try:
+                parse_augment(recipe, space)
+            except AugmentationError as err:
+                raise GridError(f"{name}: augmentations.{space}: {err}") from None
+        if len(set(recipes)) != len(recipes):
+            raise GridError(f"{name}: augmentations.{space} lists a recipe twice: {recipes}")
+        resolved[space] = recipes
     return resolved
 
 
@@ -506,10 +543,22 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
         demos=_as_list(values.get("demos", [100]), "demos"),
         preset=preset,
         encoders=_resolve_encoders(values.get("encoders"), spaces, preset),
+        augmentations=_resolve_augmentations(values.get("augmentations"), spaces, name),
         **{
             k: values[k]
             for k in GRID_FIELDS
-            - {"name", "tasks", "obs_spaces", "policies", "seeds", "learning_rates", "demos", "preset", "encoders"}
+            - {
+                "name",
+                "tasks",
+                "obs_spaces",
+                "policies",
+                "seeds",
+                "learning_rates",
+                "demos",
+                "preset",
+                "encoders",
+                "augmentations",
+            }
             if k in values
         },
     )

@@ -1,4 +1,5 @@
-"""`obsbench encoders`: list the registered encoders and the observation spaces each accepts."""
+"""`obsbench encoders`: list the registered encoders and training augmentations, and the observation spaces each
+accepts."""
 
 from __future__ import annotations
 
@@ -9,21 +10,26 @@ from lerobot_obsbench.commands import common
 from lerobot_obsbench.schema import OBS_SPACES
 
 NAME = "encoders"
-HELP = "list registered encoders and the observation spaces they accept"
+HELP = "list registered encoders and augmentations, and the observation spaces they accept"
 EXAMPLE = """obsbench encoders --obs-space pointcloud"""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--obs-space", choices=OBS_SPACES, help="only encoders accepting this space")
+    p.add_argument("--obs-space", choices=OBS_SPACES, help="only encoders and augmentations accepting this space")
 
 
 def run(args: argparse.Namespace) -> int:
+    from lerobot_obsbench.augmentations import augmentation_info, available_augmentations
     from lerobot_obsbench.encoders import available_encoders, encoder_info
 
     for name in available_encoders(args.obs_space):
         info = encoder_info(name)
         weights = f"; pretrained: {info.pretrained}" if info.pretrained else ""
         print(f"{name:10s} spaces: {', '.join(info.spaces):32s} {info.summary}{weights}")
+    print("\naugmentations (--policy.augment=NAME[+NAME...], in training only):")
+    for name in available_augmentations(args.obs_space):
+        info = augmentation_info(name)
+        print(f"{name:16s} spaces: {', '.join(info.spaces):26s} {info.summary}")
     return 0
 
 

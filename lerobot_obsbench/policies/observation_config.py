@@ -10,6 +10,7 @@ from typing import ClassVar
 
 from lerobot.optim.optimizers import AdamWConfig
 
+from lerobot_obsbench.augmentations import parse_augment
 from lerobot_obsbench.camera_calibration import dataset_calibration
 from lerobot_obsbench.encoders import (
     EncoderContext,
@@ -108,6 +109,10 @@ class ObservationConfig:
     # Workspace crop box in the world frame (xmin, xmax, ymin, ymax, zmin, zmax), metres; zmin > 0 drops the
     # ground / table plane.
     workspace: list[float] = field(default_factory=lambda: list(DEFAULT_WORKSPACE))
+    # Training-time augmentation recipe: registered names joined by '+' (`random_shift`, `point_jitter+point_dropout`;
+    # `obsbench encoders` lists them with their spaces), run inside the policy's forward in training only (the
+    # centre crop of `random_crop` also at test). Empty: none.
+    augment: str = ""
     # Training-time jitter of each workspace bound, metres (uniform in ±jitter per sample; the official
     # real-robot code uses 0.01). Point clouds only.
     workspace_jitter: float = 0.0
@@ -211,6 +216,7 @@ class ObservationConfig:
         check_choice("depth_normalization", self.depth_normalization, DEPTH_NORMALIZATIONS)
         check_choice("point_pipeline", self.point_pipeline, POINT_PIPELINES)
         check_choice("point_normalization", self.point_normalization, POINT_NORMALIZATIONS)
+        parse_augment(self.augment, self.obs_space)
         if self.image_input_size is not None and self.image_input_size < 16:
             raise ValueError(f"image_input_size must be >= 16 pixels or None; got {self.image_input_size}")
         if self.optimizer_grad_clip_norm < 0:

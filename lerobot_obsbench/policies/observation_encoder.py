@@ -74,6 +74,7 @@ class ObservationEncoder(nn.Module):
             point_pipeline=config.point_pipeline,
             point_normalization=config.point_normalization,
             workspace_jitter=config.workspace_jitter,
+            augment=config.augment,
         )
         options = config.encoder_options()
         self.encoder = make_encoder(config.encoder, config.obs_space, output=output, dim=dim, **options)
