@@ -242,6 +242,7 @@ def grid_rows(grid_name: str, device: torch.device, repeats: int, threads: list[
             **task_overrides(run.task, run.obs_space),
             **dict(run.policy_overrides),
             "encoder": run.encoder,
+            "augment": run.augment,
             "optimizer_lr": run.lr,
         }
         cfg = ours_cls(
@@ -261,6 +262,7 @@ def grid_rows(grid_name: str, device: torch.device, repeats: int, threads: list[
                     "policy": run.policy,
                     "obs_space": run.obs_space,
                     "encoder": run.encoder,
+                    "augment": run.augment,
                     "batch": run.batch_size,
                     "image_size": run.image_size,
                     "threads": count,

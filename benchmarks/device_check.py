@@ -21,7 +21,8 @@ stopped by its time limit keeps what it finished; a stage that would start after
 - `cpu_simulation`: ManiSkill's CPU simulation, one env per worker process rendering on the device, at N workers:
   env steps/s with random actions;
 - `train_step`: the training step (forward, backward, optimizer) of the paper preset's space × encoder pairs
-  (paper-main's encoders at the paper's batches) and of every run of the quick grid, steps/s and peak memory
+  (paper-main's encoders at the paper's batches) and of every run of the quick and recipes grids (the latter with
+  its augmentations), steps/s and peak memory
   (benchmarks/bench_train_step.py);
 - `preprocess`: unproject → crop → voxel → FPS → kNN per frame (benchmarks/bench_preprocess.py).
 
@@ -301,6 +302,7 @@ class DeviceCheck:
             "rows": rows,
             "skipped": skipped,
             "quick_grid": grid_rows("quick", device, sizes.train_repeats),
+            "recipes_grid": grid_rows("recipes", device, sizes.train_repeats),
         }
 
     def preprocess(self) -> dict:
