@@ -30,9 +30,12 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from lerobot_obsbench.errors import ObsBenchError
-from lerobot_obsbench.schema import IMAGE_SPACES, POINT_SPACES
+from lerobot_obsbench.schema import FUSED_SPACES, IMAGE_SPACES, POINT_SPACES
 
 KINDS = ("colour", "image", "points")
+# A fused space takes both: image transforms act on its images, point transforms on its cloud.
+IMAGE_AUGMENTED = (*IMAGE_SPACES, *FUSED_SPACES)
+POINT_AUGMENTED = (*POINT_SPACES, *FUSED_SPACES)
 # DrQ pads 84-pixel frames by 4; other sizes are padded in proportion (3 pixels at 64²).
 SHIFT_FRACTION = 4 / 84
 # Diffusion Policy crops 84-pixel frames to 76 (90%) and takes the centre crop at test.
@@ -178,7 +181,7 @@ def _crop_at(padded: Tensor, rows: Tensor, columns: Tensor, height: int, width: 
 @register_augmentation(
     "random_shift",
     "image",
-    IMAGE_SPACES,
+    IMAGE_AUGMENTED,
     "pad by 4/84 of the frame (edge pixels) and crop back at a random offset (DrQ)",
 )
 def random_shift(images: Tensor, training: bool) -> Tensor:
@@ -193,7 +196,7 @@ def random_shift(images: Tensor, training: bool) -> Tensor:
 @register_augmentation(
     "random_crop",
     "image",
-    IMAGE_SPACES,
+    IMAGE_AUGMENTED,
     "a random 90% crop in training, the centre crop at test, resized back to the frame (Diffusion Policy)",
 )
 def random_crop(images: Tensor, training: bool) -> Tensor:
@@ -216,7 +219,7 @@ def _factor(n: int, like: Tensor) -> Tensor:
 @register_augmentation(
     "colour_jitter",
     "colour",
-    ("rgb", "rgbd", "pointmap"),
+    ("rgb", "rgbd", "pointmap", *FUSED_SPACES),
     "brightness, contrast and saturation each scaled by 1 ± 0.2, per image",
 )
 def colour_jitter(rgb: Tensor) -> Tensor:
@@ -243,7 +246,7 @@ def _radius_xy(half: Tensor) -> float:
 @register_augmentation(
     "point_rotate",
     "points",
-    POINT_SPACES,
+    POINT_AUGMENTED,
     "rotate the scene about the vertical axis through the crop box's centre, ±5°",
     reach=lambda half: 2 * math.sin(math.radians(POINT_ROTATION_DEG) / 2) * _radius_xy(half),
 )
@@ -260,7 +263,7 @@ def point_rotate(xyz: Tensor, valid: Tensor, centre: Tensor, half: Tensor) -> tu
 @register_augmentation(
     "point_scale",
     "points",
-    POINT_SPACES,
+    POINT_AUGMENTED,
     "scale the scene about the crop box's centre by 1 ± 0.05",
     reach=lambda half: POINT_SCALE / (1 - POINT_SCALE) * float(half.norm()),
 )
@@ -273,7 +276,7 @@ def point_scale(xyz: Tensor, valid: Tensor, centre: Tensor, half: Tensor) -> tup
 @register_augmentation(
     "point_translate",
     "points",
-    POINT_SPACES,
+    POINT_AUGMENTED,
     "move the scene by up to ±2 cm per axis",
     reach=lambda half: POINT_TRANSLATION_M * math.sqrt(3),
 )
@@ -284,7 +287,7 @@ def point_translate(xyz: Tensor, valid: Tensor, centre: Tensor, half: Tensor) ->
 @register_augmentation(
     "point_jitter",
     "points",
-    POINT_SPACES,
+    POINT_AUGMENTED,
     "move each point by Gaussian noise (2 mm, clipped to 5 mm) per axis",
     reach=lambda half: JITTER_CLIP_M * math.sqrt(3),
 )
@@ -294,7 +297,7 @@ def point_jitter(xyz: Tensor, valid: Tensor, centre: Tensor, half: Tensor) -> tu
 
 
 @register_augmentation(
-    "point_dropout", "points", POINT_SPACES, "drop 10% of the points at random", reach=lambda half: 0.0
+    "point_dropout", "points", POINT_AUGMENTED, "drop 10% of the points at random", reach=lambda half: 0.0
 )
 def point_dropout(xyz: Tensor, valid: Tensor, centre: Tensor, half: Tensor) -> tuple[Tensor, Tensor]:
     return xyz, valid & (torch.rand(valid.shape, device=valid.device) >= POINT_DROPOUT)

@@ -20,7 +20,15 @@ pointmap), "depth" (image spaces with a depth or xyz channel), "point" — or an
 from __future__ import annotations
 
 from lerobot_obsbench.encoders import default_encoder
-from lerobot_obsbench.schema import DEPTH_IMAGE_SPACES, IMAGE_SPACES, POINT_SPACES, POLICY_TYPES, check_choice
+from lerobot_obsbench.schema import (
+    DEPTH_IMAGE_SPACES,
+    FUSED_SPACES,
+    IMAGE_SPACES,
+    POINT_SPACES,
+    POLICY_TYPES,
+    check_choice,
+    space_parts,
+)
 
 ACT, DP = POLICY_TYPES
 # The paper's point-cloud encoders: FPS + kNN tokenizer, its pipeline and heads.
@@ -98,13 +106,12 @@ PRESETS: dict[str, dict[tuple[str, str], dict[str, object]]] = {
 
 
 def space_kinds(obs_space: str) -> tuple[str, ...]:
+    """The preset keys a space takes: `all`, and `image`, `depth`, `point` where it (or a part of it) is one."""
+    parts = space_parts(obs_space)
     kinds = ["all"]
-    if obs_space in IMAGE_SPACES:
-        kinds.append("image")
-    if obs_space in DEPTH_IMAGE_SPACES:
-        kinds.append("depth")
-    if obs_space in POINT_SPACES:
-        kinds.append("point")
+    for kind, spaces in (("image", IMAGE_SPACES), ("depth", DEPTH_IMAGE_SPACES), ("point", POINT_SPACES)):
+        if any(part in spaces for part in parts):
+            kinds.append(kind)
     return tuple(kinds)
 
 
@@ -117,7 +124,9 @@ def _merged(preset: str, policy_type: str, kinds) -> dict[str, object]:
 
 
 def preset_encoder(preset: str, obs_space: str) -> str:
-    """The encoder a preset uses for `obs_space` when none is named."""
+    """The encoder a preset uses for `obs_space` when none is named (for a fused space, its parts' joined)."""
+    if obs_space in FUSED_SPACES:
+        return "+".join(preset_encoder(preset, part) for part in FUSED_SPACES[obs_space])
     return str(_merged(preset, ACT, space_kinds(obs_space)).get("encoder") or default_encoder(obs_space))
 
 
@@ -125,7 +134,11 @@ def preset_overrides(preset: str, policy_type: str, obs_space: str, encoder: str
     """The preset's `--policy.*` fields for a run with `encoder` (None: the preset's encoder for the space)."""
     check_choice("preset", preset, PRESETS)
     check_choice("policy type", policy_type, POLICY_TYPES)
-    return _merged(preset, policy_type, (*space_kinds(obs_space), encoder or preset_encoder(preset, obs_space)))
+    encoders = (encoder or preset_encoder(preset, obs_space)).split("+")  # a fused space's: each part's fields
+    fields = _merged(preset, policy_type, (*space_kinds(obs_space), *encoders))
+    if obs_space in FUSED_SPACES:
+        fields.pop("encoder", None)  # a part's encoder choice; the fused space's is the pair
+    return fields
 
 
 def model_sizes(preset: str, policy_type: str) -> dict[str, object]:

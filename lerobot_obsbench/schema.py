@@ -38,6 +38,9 @@ IMAGE_CHANNELS = {"rgb": 3, "depth": 1, "rgbd": 4, "pointmap": 6}
 IMAGE_SPACES = tuple(IMAGE_CHANNELS)
 DEPTH_IMAGE_SPACES = ("depth", "rgbd", "pointmap")  # image spaces with a depth or xyz channel
 POINT_SPACES = ("pointcloud",)
+# Fused spaces (beyond the paper): each part's input through its own encoder, their tokens (ACT) or features
+# (Diffusion Policy) side by side in one condition. The name is the parts joined by "+".
+FUSED_SPACES = {"rgb+pointcloud": ("rgb", "pointcloud")}
 # The blind control (beyond the paper): the same proprioception and goal, no visual observation at all.
 BLIND_SPACES = ("none",)
 # The oracle control (beyond the paper): the same policy given the simulator's object poses instead of a sensor,
@@ -45,7 +48,7 @@ BLIND_SPACES = ("none",)
 ORACLE_SPACES = ("state",)
 # Encoder-free controls that read no camera.
 CONTROL_SPACES = (*BLIND_SPACES, *ORACLE_SPACES)
-OBS_SPACES = (*IMAGE_SPACES, *POINT_SPACES, *CONTROL_SPACES)
+OBS_SPACES = (*IMAGE_SPACES, *POINT_SPACES, *FUSED_SPACES, *CONTROL_SPACES)
 # Per-point features of a point cloud, with their channel counts.
 POINT_FEATURES = {"rgb+xyz": 6, "xyz": 3, "rgb": 3}
 # Frames point coordinates can be expressed in: world (robot base), the first camera, the end effector.
@@ -96,6 +99,13 @@ SPACE_SENSORS: dict[str, tuple[str, ...]] = {
     "none": (),
     "state": (),
 }
+# a fused space reads what its parts read
+SPACE_SENSORS.update(
+    {
+        fused: tuple(dict.fromkeys(p for part in parts for p in SPACE_SENSORS[part]))
+        for fused, parts in FUSED_SPACES.items()
+    }
+)
 
 
 class SchemaError(ObsBenchError, ValueError):
@@ -113,6 +123,26 @@ def check_obs_space(obs_space: str) -> str:
     if obs_space not in OBS_SPACES:
         raise SchemaError(f"Unknown obs_space {obs_space!r}; choose one of {', '.join(OBS_SPACES)}.")
     return obs_space
+
+
+def space_parts(obs_space: str) -> tuple[str, ...]:
+    """The spaces whose inputs `obs_space` gives: its parts for a fused space, itself otherwise."""
+    return FUSED_SPACES.get(check_obs_space(obs_space), (obs_space,))
+
+
+def reads_points(obs_space: str) -> bool:
+    """Whether the space's input includes a point cloud (so it has a crop box and the point-cloud choices)."""
+    return any(part in POINT_SPACES for part in space_parts(obs_space))
+
+
+def reads_images(obs_space: str) -> bool:
+    """Whether the space's input includes images (so it has a frame size)."""
+    return any(part in IMAGE_SPACES for part in space_parts(obs_space))
+
+
+def has_positions(obs_space: str) -> bool:
+    """Whether the space's input holds 3-D positions, which `frame` expresses (point clouds, pointmaps)."""
+    return any(part in (*POINT_SPACES, "pointmap") for part in space_parts(obs_space))
 
 
 def input_channels(obs_space: str, point_features: str = "rgb+xyz") -> int:

@@ -16,11 +16,15 @@
                   the empty-cloud point: one point at the box centre with colour 0, so training and rollouts
                   go on; such frames are counted and logged, and training stops when more than half of its
                   first 64+ frames are empty (bad units or extrinsics, not dropouts).
+    rgb+pointcloud -> (rgb's images, pointcloud's PointCloud): a fused space gives each part's input.
     none       -> (B, 0): the blind control sees nothing (the batch size comes from observation.state).
     state      -> (B, 7 * O): the oracle control reads the simulator's object poses (observation.privileged_state).
 
 The same module runs on dataset batches in training and on env observations in evaluation, so an observation
-space is never baked into stored data. `CalibratedDepth` runs before it on datasets recorded by LeRobot itself.
+space is never baked into stored data. In training it also runs the policy's augmentation recipe
+(`augmentations.py`): colour transforms on each camera's colour before normalisation, image transforms on the
+space's images, point transforms on the world-frame cloud before the crop box. `CalibratedDepth` runs before it
+on datasets recorded by LeRobot itself.
 """
 
 from __future__ import annotations
@@ -37,6 +41,7 @@ from lerobot_obsbench.schema import (
     CONTROL_SPACES,
     DEPTH_NORMALIZATIONS,
     FRAMES,
+    FUSED_SPACES,
     ORACLE_SPACES,
     POINT_FEATURES,
     POINT_NORMALIZATIONS,
@@ -49,6 +54,7 @@ from lerobot_obsbench.schema import (
     check_choice,
     check_obs_space,
     depth_key,
+    has_positions,
     image_key,
     intrinsics_key,
     stock_depth_key,
@@ -118,7 +124,7 @@ class ObservationAdapter(nn.Module):
 
     @property
     def needs_ee_pose(self) -> bool:
-        return self.frame == "ee" and self.obs_space in ("pointcloud", "pointmap")
+        return self.frame == "ee" and has_positions(self.obs_space)
 
     # ---- checked accessors: a clear error names the key and the fix ------------------------------------
 
@@ -185,23 +191,28 @@ class ObservationAdapter(nn.Module):
         points = geometry.transform_points(geometry.unproject_depth(depth_m, K), cam2world)
         return points, depth_m > 0
 
-    def forward(self, batch: dict, ee_pose: Tensor | None = None) -> Tensor | PointCloud:
+    def forward(self, batch: dict, ee_pose: Tensor | None = None) -> Tensor | PointCloud | tuple:
         if self.obs_space in BLIND_SPACES:
             state = _require(batch, STATE_KEY)
             return state.new_zeros(state.shape[0], 0)
         if self.obs_space in ORACLE_SPACES:
             return _require(batch, PRIVILEGED_STATE_KEY).float()
-        if self.obs_space == "pointcloud":
+        if self.obs_space in FUSED_SPACES:
+            return tuple(self._space_input(part, batch, ee_pose) for part in FUSED_SPACES[self.obs_space])
+        return self._space_input(self.obs_space, batch, ee_pose)
+
+    def _space_input(self, space: str, batch: dict, ee_pose: Tensor | None) -> Tensor | PointCloud:
+        if space == "pointcloud":
             return self._pointcloud(batch, ee_pose)
-        to_frame = self._frame_transform(self.cameras[0], batch, ee_pose) if self.obs_space == "pointmap" else None
+        to_frame = self._frame_transform(self.cameras[0], batch, ee_pose) if space == "pointmap" else None
         per_camera = []
         for cam in self.cameras:
             channels = []
-            if self.obs_space in ("rgb", "rgbd", "pointmap"):
+            if space in ("rgb", "rgbd", "pointmap"):
                 channels.append((self.augment.colour(self._rgb(batch, cam)) - self.rgb_mean) / self.rgb_std)
-            if self.obs_space in ("depth", "rgbd"):
+            if space in ("depth", "rgbd"):
                 channels.append(self._scaled_depth(self._depth_m(batch, cam))[:, None])
-            if self.obs_space == "pointmap":
+            if space == "pointmap":
                 points, valid = self._world_points(batch, cam)
                 if to_frame is not None:
                     points = geometry.transform_points(points, to_frame)

@@ -70,6 +70,23 @@ def test_variants_are_an_axis_and_a_column_label():
     assert len({r.run_id for r in runs}) == 3
 
 
+def test_augmentations_are_an_axis_per_space_whose_unaugmented_runs_keep_their_ids(tmp_path):
+    plain = parse_grid(BASE).expand()
+    grid = parse_grid({**BASE, "augmentations": {"rgb": ["", "random_shift+colour_jitter"]}})
+    runs = grid.expand()
+    assert [(r.obs_space, r.augment) for r in runs] == [
+        ("rgb", ""),
+        ("rgb", "random_shift+colour_jitter"),
+        ("pointcloud", ""),
+    ]
+    assert {r.run_id for r in plain} == {r.run_id for r in runs if not r.augment}  # finished runs are reused
+    augmented = runs[1]
+    assert augmented.method == "obs_act/rgb/resnet18/random_shift+colour_jitter"
+    assert "augment" not in runs[0].config() and RunSpec.from_config(augmented.config()) == augmented
+    command = train_command(augmented, tmp_path / "demos", tmp_path / "run", 10, "cpu", 5)
+    assert "--policy.augment=random_shift+colour_jitter" in command
+
+
 def test_run_id_is_a_hash_of_the_resolved_config():
     a, b = parse_grid({**BASE, "learning_rates": [1e-4, 1e-3]}).expand()[:2]
     assert a.run_id != b.run_id and a.lr != b.lr
@@ -99,6 +116,12 @@ def test_run_id_is_a_hash_of_the_resolved_config():
         ({"variants": [{}, {"sampling": "pre"}]}, ["obs_act/rgb/resnet18", "sampling='pre'", "point-cloud design"]),
         ({"policy_overrides": {"chunk_sise": 5}}, ["no fields ['chunk_sise']"]),
         ({"seeds": []}, ["'seeds' is empty"]),
+        ({"augmentations": {"rgb": ["point_jitter"]}}, ["augmentations.rgb", "does not apply", "random_shift"]),
+        ({"augmentations": {"rgb": ["random_shfit"]}}, ["unknown augmentation 'random_shfit'", "colour_jitter"]),
+        ({"augmentations": {"depth": ["random_shift"]}}, ["augmentations names spaces ['depth']"]),
+        ({"augmentations": {"rgb": ["", None]}}, ["lists a recipe twice"]),
+        ({"augmentations": ["random_shift"]}, ["maps spaces to recipes"]),
+        ({"policy_overrides": {"augment": "random_shift"}}, ["sets --policy.augment", "augmentations"]),
     ],
 )
 def test_bad_grids_fail_with_the_valid_choices(change, words):

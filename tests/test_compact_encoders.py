@@ -345,3 +345,59 @@ def test_every_preset_configures_every_registered_encoder(preset, policy_type):
             fields = preset_overrides(preset, policy_type, obs_space, encoder)
             fields.pop("encoder", None)
             PreTrainedConfig.get_choice_class(policy_type)(obs_space=obs_space, encoder=encoder, **fields)
+
+
+# ---- normalisation choices -----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "encoder,norm,layer",
+    [
+        ("dp3", None, torch.nn.LayerNorm),
+        ("dp3", "batch", torch.nn.BatchNorm1d),
+        ("pointnet", None, torch.nn.BatchNorm1d),
+        ("pointnet", "layer", torch.nn.LayerNorm),
+        ("spatial_softmax", None, torch.nn.GroupNorm),
+        ("spatial_softmax", "batch", torch.nn.BatchNorm2d),
+    ],
+)
+def test_an_encoders_norm_option_builds_that_norm_and_padding_still_changes_nothing(encoder, norm, layer):
+    space = "rgb" if encoder == "spatial_softmax" else "pointcloud"
+    options = {"norm": norm} if space == "rgb" else {"norm": norm, "point_features": "xyz", "num_tokens": 8}
+    if encoder == "pointnet":
+        options["knn"] = 4
+    if space == "rgb":
+        options["image_size"] = 32
+    module = make_encoder(encoder, space, "global", **options)
+    norms = {
+        type(m)
+        for m in module.modules()
+        if isinstance(m, (torch.nn.LayerNorm, torch.nn.modules.batchnorm._BatchNorm, torch.nn.GroupNorm))
+    }
+    assert layer in norms and not norms - {layer, torch.nn.BatchNorm1d if encoder == "pointnet" else layer}
+    module.train()
+    if space == "rgb":
+        out = module(torch.rand(4, 1, 3, 32, 32))
+        assert out.shape == (4, 64) and torch.isfinite(out).all()
+        return
+    cloud = _cloud(40, 3, batch=3)
+    padded = PointCloud(
+        torch.cat([cloud.xyz, torch.full((3, 7, 3), 9.0)], 1),
+        torch.cat([cloud.features, torch.full((3, 7, 3), 9.0)], 1),
+        torch.cat([cloud.mask, torch.zeros(3, 7, dtype=torch.bool)], 1),
+    )
+    torch.manual_seed(0)
+    plain = module(cloud)
+    torch.manual_seed(0)
+    torch.testing.assert_close(module(padded), plain)  # the padded points reach no statistic and no output
+
+
+def test_a_norm_the_encoder_does_not_offer_is_refused_at_config_time():
+    from lerobot_obsbench.policies import ObsACTConfig
+
+    with pytest.raises(ValueError, match=r"encoder_norm='group': encoder 'dp3' takes batch, layer"):
+        ObsACTConfig(device="cpu", obs_space="pointcloud", encoder="dp3", encoder_norm="group")
+    with pytest.raises(ValueError, match="encoder_norm='group' is not an option of encoder 'resnet18'"):
+        ObsACTConfig(device="cpu", obs_space="rgb", encoder="resnet18", encoder_norm="group")
+    config = ObsACTConfig(device="cpu", obs_space="rgb", encoder="spatial_softmax", encoder_norm="batch")
+    assert config.encoder_options()["norm"] == "batch"

@@ -54,7 +54,7 @@ def test_registry_states_its_contract():
         "pointnet",
     ]
     # options come from the builder's signature; a typo is refused, naming the accepted ones
-    options = "point_features, sampling, num_tokens, knn, position_scale, pipeline, global_head"
+    options = "point_features, sampling, num_tokens, knn, position_scale, pipeline, global_head, norm"
     assert ", ".join(encoder_info("pointnet").options) == options
     with pytest.raises(TypeError, match=rf"'pointnet' takes no option\(s\) \['num_token'\]; it accepts: {options}"):
         make_encoder("pointnet", "pointcloud", num_token=64)

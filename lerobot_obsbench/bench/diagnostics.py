@@ -22,11 +22,12 @@ from pathlib import Path
 import numpy as np
 
 from lerobot_obsbench.schema import (
-    POINT_SPACES,
     POSE_SIZE,
     PRIVILEGED_STATE_KEY,
+    PointCloud,
     cam2world_key,
     intrinsics_key,
+    reads_points,
 )
 
 LOSS_PATTERN = re.compile(r"(?<!\w)step:(\d+)([KMB]?)\s.*?(?<!\w)loss:([0-9.eE+-]+)")
@@ -127,8 +128,11 @@ def held_out_diagnostics(checkpoint: str | Path, dataset: str | Path, episodes: 
                 K, cam2world = frame[intrinsics_key(cam)].cpu().numpy(), frame[cam2world_key(cam)].cpu().numpy()
                 for name, (positions, radius) in found.items():
                     pixels.setdefault(name, []).append(pixel_diameters(positions, radius, K, cam2world))
-            if config.obs_space in POINT_SPACES and config.frame == "world":
-                cloud = adapter(policy.calibrated_depth(frame))
+            if reads_points(config.obs_space) and config.frame == "world":
+                inputs = adapter(policy.calibrated_depth(frame))  # a fused space's: one input per part
+                cloud = next(
+                    x for x in (inputs if isinstance(inputs, tuple) else (inputs,)) if isinstance(x, PointCloud)
+                )
                 centres = [torch.as_tensor(p, dtype=cloud.xyz.dtype) for p, _ in found.values()]
                 radii = [r for _, r in found.values()]
                 # the seeds the policy's tokenizer picks: its pipeline's FPS start

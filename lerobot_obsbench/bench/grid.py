@@ -42,7 +42,7 @@ from lerobot_obsbench.rlbench.paper_tasks import CAMERAS as RLBENCH_CAMERAS
 from lerobot_obsbench.rlbench.paper_tasks import IMAGE_SIZE as RLBENCH_IMAGE_SIZE
 from lerobot_obsbench.rlbench.paper_tasks import WORKSPACE as RLBENCH_WORKSPACE
 from lerobot_obsbench.rlbench.paper_tasks import RLBenchTaskError, grid_task_name, rlbench_task
-from lerobot_obsbench.schema import CONTROL_SPACES, MIN_IMAGE_SIZE, OBS_SPACES, POINT_SPACES, POLICY_TYPES
+from lerobot_obsbench.schema import CONTROL_SPACES, MIN_IMAGE_SIZE, OBS_SPACES, POLICY_TYPES, reads_points
 
 BUDGET_UNITS = {
     "steps": "optimizer steps",
@@ -349,7 +349,7 @@ class Grid:
 def task_overrides(task: str, obs_space: str) -> dict[str, object]:
     """`--policy.*` fields a task sets for a space: its point-cloud crop box (`Task.workspace`; RLBench's scene)."""
     workspace = RLBENCH_WORKSPACE if grid_task_name(task) else task_spec(task).workspace
-    return {"workspace": list(workspace)} if workspace is not None and obs_space in POINT_SPACES else {}
+    return {"workspace": list(workspace)} if workspace is not None and reads_points(obs_space) else {}
 
 
 GRID_FIELDS = set(Grid.__dataclass_fields__)

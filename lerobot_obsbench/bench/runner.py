@@ -66,9 +66,9 @@ def device_kind(device: str) -> str:
 
 
 def space_kind(obs_space: str) -> str:
-    from lerobot_obsbench.schema import CONTROL_SPACES, POINT_SPACES
+    from lerobot_obsbench.schema import CONTROL_SPACES, reads_points
 
-    return "point" if obs_space in POINT_SPACES else "none" if obs_space in CONTROL_SPACES else "image"
+    return "point" if reads_points(obs_space) else "none" if obs_space in CONTROL_SPACES else "image"
 
 
 def train_seconds(run: RunSpec, steps: int, device: str) -> float:

@@ -20,12 +20,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from lerobot_obsbench.augmentations import augmentation_info, available_augmentations
-    from lerobot_obsbench.encoders import available_encoders, encoder_info
+    from lerobot_obsbench.encoders import available_encoders, default_encoder, encoder_info
+    from lerobot_obsbench.schema import FUSED_SPACES
 
     for name in available_encoders(args.obs_space):
         info = encoder_info(name)
         weights = f"; pretrained: {info.pretrained}" if info.pretrained else ""
         print(f"{name:10s} spaces: {', '.join(info.spaces):32s} {info.summary}{weights}")
+    for space, parts in FUSED_SPACES.items():
+        if args.obs_space in (None, space):
+            print(
+                f"\n{space}: one encoder per part ({', '.join(parts)}) joined by '+', e.g. "
+                f"--policy.encoder={default_encoder(space)} (the default)"
+            )
     print("\naugmentations (--policy.augment=NAME[+NAME...], in training only):")
     for name in available_augmentations(args.obs_space):
         info = augmentation_info(name)

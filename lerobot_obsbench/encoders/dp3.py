@@ -26,6 +26,7 @@ import torch
 from torch import Tensor, nn
 
 from lerobot_obsbench import geometry
+from lerobot_obsbench.encoders.point_tokenizer import POINT_NORMS, masked_apply
 from lerobot_obsbench.encoders.registry import EncoderContext, EncoderOutput, register_encoder
 from lerobot_obsbench.schema import POINT_SPACES, PointCloud, input_channels
 
@@ -48,22 +49,25 @@ def check_point_features(point_features: str) -> str:
 class DP3Encoder(nn.Module):
     """PointCloud -> DP3's 64-d feature (B, 64), or one ACT token (B, 1, dim) + its learned position (1, 1, dim)."""
 
-    def __init__(self, point_features: str, output: str, dim: int = 512, num_points: int = DP3_NUM_POINTS):
+    def __init__(
+        self, point_features: str, output: str, dim: int = 512, num_points: int = DP3_NUM_POINTS, norm: str = "layer"
+    ):
         super().__init__()
         check_point_features(point_features)
         if num_points < 1:
             raise ValueError(f"num_tokens (the points DP3 samples) must be >= 1; got {num_points}")
-        self.output, self.num_points = output, num_points
+        self.output, self.num_points, self.norm = output, num_points, norm
+        norm_layer = nn.LayerNorm if norm == "layer" else nn.BatchNorm1d
         in_channels = input_channels("pointcloud", point_features)
         widths = DP3_WIDTHS[point_features]
         layers: list[nn.Module] = []
         for i, width in enumerate(widths):
             layers.append(nn.Linear(in_channels, width))
             if not (DP3_BARE_LAST[point_features] and i == len(widths) - 1):
-                layers += [nn.LayerNorm(width), nn.ReLU()]
+                layers += [norm_layer(width), nn.ReLU()]
             in_channels = width
         self.mlp = nn.Sequential(*layers)
-        self.projection = nn.Sequential(nn.Linear(in_channels, OUT_CHANNELS), nn.LayerNorm(OUT_CHANNELS))
+        self.projection = nn.Sequential(nn.Linear(in_channels, OUT_CHANNELS), norm_layer(OUT_CHANNELS))
         if output == "tokens":
             self.token = nn.Linear(OUT_CHANNELS, dim)
             self.pos = nn.Parameter(torch.zeros(1, 1, dim))
@@ -79,7 +83,8 @@ class DP3Encoder(nn.Module):
 
     def forward(self, cloud: PointCloud) -> Tensor | tuple[Tensor, Tensor]:
         features, mask = self.sample(cloud)
-        per_point = self.mlp(features)  # per point: padding changes no real point's value
+        # per point: padding changes no real point's value (BatchNorm sees the valid points only)
+        per_point = self.mlp(features) if self.norm == "layer" else masked_apply(self.mlp, features, mask)
         pooled = per_point.masked_fill(~mask[..., None], float("-inf")).amax(dim=1)
         feature = self.projection(pooled)
         if self.output == "global":
@@ -99,10 +104,16 @@ def describe_dp3(obs_space: str, output: str, dim: int, context: EncoderContext,
     POINT_SPACES,
     "DP3's compact PointNet (3D Diffusion Policy): per-point MLP + LayerNorm, max-pool, 64-d (59.1k on xyz)",
     describe_dp3,
+    choices={"norm": POINT_NORMS},
 )
 def build_dp3(
-    obs_space: str, output: str, dim: int, point_features: str = "xyz", num_tokens: int = DP3_NUM_POINTS
+    obs_space: str,
+    output: str,
+    dim: int,
+    point_features: str = "xyz",
+    num_tokens: int = DP3_NUM_POINTS,
+    norm: str | None = None,
 ) -> DP3Encoder:
     """`num_tokens`: the points FPS keeps per cloud (DP3: 512 or 1024); `point_features`: xyz (DP3's default) or
-    rgb+xyz."""
-    return DP3Encoder(point_features, output, dim=dim, num_points=num_tokens)
+    rgb+xyz; `norm`: DP3's LayerNorm (None, "layer") or BatchNorm ("batch") after each layer."""
+    return DP3Encoder(point_features, output, dim=dim, num_points=num_tokens, norm=norm or "layer")

@@ -35,6 +35,7 @@ from lerobot_obsbench.schema import IMAGE_SPACES, input_channels
 # (out channels, kernel, stride) of each conv layer; padding kernel // 2 ("same" at stride 1).
 CONV_LAYERS = ((32, 5, 2), (64, 3, 2), (64, 3, 1), (128, 3, 1))
 GROUP_SIZE = 16  # GroupNorm groups = channels / 16, as LeRobot's Diffusion Policy with use_group_norm
+IMAGE_NORMS = ("group", "batch")  # the convolutions' normalisation: GroupNorm (per image) or BatchNorm
 NUM_KEYPOINTS = 32  # LeRobot's spatial_softmax_num_keypoints
 DEFAULT_IMAGE_SIZE = 96  # used when no camera resolution is given (Diffusion Policy's 96 px frames)
 
@@ -57,6 +58,7 @@ class SpatialSoftmaxEncoder(nn.Module):
         image_size: tuple[int, int] = (DEFAULT_IMAGE_SIZE, DEFAULT_IMAGE_SIZE),
         input_size: int | None = None,
         num_keypoints: int = NUM_KEYPOINTS,
+        norm: str = "group",
     ):
         super().__init__()
         if num_keypoints < 1:
@@ -67,7 +69,7 @@ class SpatialSoftmaxEncoder(nn.Module):
         for channels, kernel, stride in CONV_LAYERS:
             layers += [
                 nn.Conv2d(in_channels, channels, kernel, stride=stride, padding=kernel // 2),
-                nn.GroupNorm(channels // GROUP_SIZE, channels),
+                nn.GroupNorm(channels // GROUP_SIZE, channels) if norm == "group" else nn.BatchNorm2d(channels),
                 nn.ReLU(),
             ]
             in_channels = channels
@@ -121,6 +123,7 @@ def describe_spatial_softmax(
     IMAGE_SPACES,
     "4-layer GroupNorm conv stack + spatial soft-argmax, 32 keypoints per camera (0.14M, from scratch)",
     describe_spatial_softmax,
+    choices={"norm": IMAGE_NORMS},
 )
 def build_spatial_softmax(
     obs_space: str,
@@ -129,9 +132,11 @@ def build_spatial_softmax(
     image_size: int | tuple[int, int] = DEFAULT_IMAGE_SIZE,
     input_size: int | None = None,
     num_keypoints: int = NUM_KEYPOINTS,
+    norm: str | None = None,
 ) -> SpatialSoftmaxEncoder:
     """`image_size`: the camera frame size (height, width) or one side, which the soft-argmax grid is built for,
-    or `input_size` when frames are resized to it first; `num_keypoints`: K per camera."""
+    or `input_size` when frames are resized to it first; `num_keypoints`: K per camera; `norm`: GroupNorm (None,
+    "group") or BatchNorm ("batch") after each convolution."""
     size = as_frame_size(image_size)
     return SpatialSoftmaxEncoder(
         input_channels(obs_space),
@@ -140,4 +145,5 @@ def build_spatial_softmax(
         image_size=size,
         input_size=input_size,
         num_keypoints=num_keypoints,
+        norm=norm or "group",
     )

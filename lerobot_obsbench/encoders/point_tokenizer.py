@@ -44,11 +44,19 @@ def sine_embedding_3d(xyz: Tensor, dim: int, temperature: float = 10000.0, scale
     return nn.functional.pad(emb, (0, dim - emb.shape[-1]))
 
 
-def norm_relu(width: int, official: bool = False) -> list[nn.Module]:
+# Normalisation layers of per-point MLPs: BatchNorm over the batch's valid points, or LayerNorm over each point's
+# channels (which never mixes points or samples).
+POINT_NORMS = ("batch", "layer")
+
+
+def norm_relu(width: int, official: bool = False, norm: str = "batch") -> list[nn.Module]:
     """BatchNorm + ReLU: the PointNet / SpUNet norm (eps 1e-3, momentum 0.01), or PyTorch's defaults, which the
-    official code's tokenizer and Diffusion Policy head use (`official=True`)."""
-    norm = nn.BatchNorm1d(width) if official else nn.BatchNorm1d(width, eps=1e-3, momentum=0.01)
-    return [norm, nn.ReLU(inplace=True)]
+    official code's tokenizer and Diffusion Policy head use (`official=True`); `norm="layer"`: LayerNorm + ReLU."""
+    if check_choice("norm", norm, POINT_NORMS) == "layer":
+        layer = nn.LayerNorm(width)
+    else:
+        layer = nn.BatchNorm1d(width) if official else nn.BatchNorm1d(width, eps=1e-3, momentum=0.01)
+    return [layer, nn.ReLU(inplace=True)]
 
 
 def group(

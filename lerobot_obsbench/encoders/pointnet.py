@@ -16,6 +16,7 @@ from torch import Tensor, nn
 
 from lerobot_obsbench.encoders.point_tokenizer import (
     PAPER_TOKENS,
+    POINT_NORMS,
     PointTokenEncoder,
     PointTokenOptions,
     describe_point_tokens,
@@ -33,11 +34,11 @@ DP_PROJECTION, DP_WIDTHS = 96, (96,)
 class PointNetBackbone(nn.Module):
     """(xyz, features (B, N, C), mask) -> (B, N, 512): the paper's PointNet on every valid point."""
 
-    def __init__(self, in_channels: int):
+    def __init__(self, in_channels: int, norm: str = "batch"):
         super().__init__()
         layers: list[nn.Module] = []
         for width in POINTNET_WIDTHS:
-            layers += [nn.Linear(in_channels, width, bias=False), *norm_relu(width)]
+            layers += [nn.Linear(in_channels, width, bias=False), *norm_relu(width, norm=norm)]
             in_channels = width
         self.mlp = nn.Sequential(*layers)
         self.out_channels = POINTNET_WIDTHS[-1]
@@ -53,6 +54,7 @@ class PointNetBackbone(nn.Module):
     "see docs/observation-spaces.md)",
     describe_point_tokens(POINTNET_WIDTHS[-1]),
     default_for=("pointcloud",),
+    choices={"norm": POINT_NORMS},
 )
 def build_pointnet(
     obs_space: str,
@@ -60,10 +62,12 @@ def build_pointnet(
     dim: int,
     point_features: str = "rgb+xyz",
     tokens: PointTokenOptions = PAPER_TOKENS,
+    norm: str | None = None,
 ) -> PointTokenEncoder:
+    """`norm`: the backbone's per-point normalisation (None: the paper's BatchNorm; "layer": LayerNorm)."""
     channels = input_channels(obs_space, point_features)
     return PointTokenEncoder(
-        PointNetBackbone(channels),
+        PointNetBackbone(channels, norm or "batch"),
         channels,
         output,
         dim=dim,

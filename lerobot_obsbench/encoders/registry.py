@@ -9,21 +9,30 @@ Each registered encoder states its contract:
 - what it outputs, before anything is built (`encoder_output`): with `output="tokens"`, `(tokens (B, S, D),
   pos (B|1, S, D))` for ACT's transformer; with `output="global"`, one feature vector (B, F) for Diffusion
   Policy's conditioning;
-- the spaces it is the default encoder of (one default per space; declared here only).
+- the spaces it is the default encoder of (one default per space; declared here only);
+- the values an option may take where they are a fixed set (`choices`, e.g. the normalisation layers `norm`
+  offers), checked before anything is built; None always means the builder's own default.
 
 Names are unique: registering a name twice is an error.
+
+A fused space (`schema.FUSED_SPACES`, e.g. rgb+pointcloud) is encoded by one registered encoder per part, named
+by their names joined the same way (`spatial_softmax+dp3`): `FusedEncoder` runs each on its part's input and puts
+their tokens side by side (ACT) or concatenates their features (Diffusion Policy). Its options are its parts'
+options, each passed to the part that takes it; an option two parts take (`norm`) is not an option of the pair.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import inspect
+import itertools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import torch
 from torch import nn
 
-from lerobot_obsbench.schema import OBS_SPACES, check_obs_space
+from lerobot_obsbench.schema import FUSED_SPACES, OBS_SPACES, check_obs_space
 
 OUTPUTS = ("tokens", "global")
 # Builder parameters every encoder has; the rest of a builder's signature are its options.
@@ -62,6 +71,8 @@ class EncoderInfo:
     default_for: tuple[str, ...] = ()
     # builder parameter -> the dataclass of the option set it takes (its fields are in `options`)
     option_sets: dict[str, type] = field(default_factory=dict)
+    # option -> the values it accepts (None, the builder's default, always)
+    choices: dict[str, tuple] = field(default_factory=dict)
 
 
 _REGISTRY: dict[str, EncoderInfo] = {}
@@ -74,11 +85,13 @@ def register_encoder(
     describe: Callable[..., EncoderOutput],
     pretrained: str = "",
     default_for: tuple[str, ...] = (),
+    choices: dict[str, tuple] | None = None,
 ):
     """Decorator registering `build(obs_space, output, dim, *, <options>) -> nn.Module` under `name`.
 
     `describe` states the output for a configuration before building; `pretrained` names the weights the
-    `pretrained=` option loads (empty: none); `default_for` lists the spaces this encoder is the default of.
+    `pretrained=` option loads (empty: none); `default_for` lists the spaces this encoder is the default of;
+    `choices` the values of options that take one of a fixed set.
     """
     unknown = set(spaces) - set(OBS_SPACES)
     if unknown:
@@ -110,6 +123,9 @@ def register_encoder(
             options.append(key)
             if default is not inspect.Parameter.empty:
                 defaults[key] = default
+        unknown_choices = sorted(set(choices or {}) - set(options))
+        if unknown_choices:
+            raise ValueError(f"encoder {name!r}: choices given for options it does not take: {unknown_choices}")
         _REGISTRY[name] = EncoderInfo(
             name,
             tuple(spaces),
@@ -121,6 +137,7 @@ def register_encoder(
             pretrained,
             tuple(default_for),
             option_sets,
+            dict(choices or {}),
         )
         return build
 
@@ -128,22 +145,91 @@ def register_encoder(
 
 
 def available_encoders(obs_space: str | None = None) -> list[str]:
-    """Registered encoder names, optionally only those accepting `obs_space`."""
+    """Registered encoder names, optionally only those accepting `obs_space` (for a fused space: every pair of
+    encoders of its parts)."""
     if obs_space is None:
         return sorted(_REGISTRY)
-    check_obs_space(obs_space)
+    if check_obs_space(obs_space) in FUSED_SPACES:
+        return ["+".join(names) for names in itertools.product(*map(available_encoders, FUSED_SPACES[obs_space]))]
     return sorted(name for name, info in _REGISTRY.items() if obs_space in info.spaces)
 
 
 def encoder_info(name: str) -> EncoderInfo:
-    if name not in _REGISTRY:
-        raise ValueError(f"Unknown encoder {name!r}; registered encoders: {', '.join(sorted(_REGISTRY))}.")
-    return _REGISTRY[name]
+    if name in _REGISTRY:
+        return _REGISTRY[name]
+    parts = name.split("+")
+    if len(parts) > 1 and all(part in _REGISTRY for part in parts):
+        return _fused_info(tuple(parts))
+    raise ValueError(
+        f"Unknown encoder {name!r}; registered encoders: {', '.join(sorted(_REGISTRY))} (a fused space takes one "
+        f"per part joined by '+', e.g. {'+'.join(default_encoder(p) for p in next(iter(FUSED_SPACES.values())))})."
+    )
+
+
+class FusedEncoder(nn.Module):
+    """One encoder per part of a fused space: inputs (one per part) -> the parts' tokens side by side with their
+    positions (ACT), or their features concatenated (Diffusion Policy)."""
+
+    def __init__(self, parts: list[nn.Module], output: str):
+        super().__init__()
+        self.parts, self.output = nn.ModuleList(parts), output
+
+    def forward(self, inputs: tuple) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
+        outs = [part(x) for part, x in zip(self.parts, inputs, strict=True)]
+        if self.output == "global":
+            return torch.cat(outs, dim=-1)
+        tokens = torch.cat([t for t, _ in outs], dim=1)
+        batch = max(p.shape[0] for _, p in outs)
+        return tokens, torch.cat([p.expand(batch, *p.shape[1:]) for _, p in outs], dim=1)
+
+
+def _fused_info(parts: tuple[str, ...]) -> EncoderInfo:
+    infos = [_REGISTRY[p] for p in parts]
+    spaces = tuple(
+        space
+        for space, space_parts in FUSED_SPACES.items()
+        if len(space_parts) == len(infos) and all(sp in i.spaces for sp, i in zip(space_parts, infos, strict=True))
+    )
+    if not spaces:
+        raise ValueError(
+            f"encoder {'+'.join(parts)!r}: no fused space has parts these encoders accept in this order "
+            f"(fused spaces: {', '.join(f'{k} = {" + ".join(v)}' for k, v in FUSED_SPACES.items())})"
+        )
+    counts = [o for i in infos for o in i.options]
+    options = tuple(dict.fromkeys(o for o in counts if counts.count(o) == 1))
+
+    def split(options_given: dict) -> list[dict]:
+        return [{k: v for k, v in options_given.items() if k in i.options} for i in infos]
+
+    def build(obs_space: str, output: str, dim: int, **given) -> FusedEncoder:
+        pieces = zip(parts, FUSED_SPACES[obs_space], split(given), strict=True)
+        return FusedEncoder([make_encoder(n, sp, output, dim, **o) for n, sp, o in pieces], output)
+
+    def describe(obs_space: str, output: str, dim: int, context: EncoderContext, given: dict) -> EncoderOutput:
+        outs = [
+            i.describe(sp, output, dim, context, {**i.defaults, **o})
+            for i, sp, o in zip(infos, FUSED_SPACES[obs_space], split(given), strict=True)
+        ]
+        if output == "tokens":
+            return EncoderOutput(sum(o.tokens for o in outs), dim)
+        return EncoderOutput(None, sum(o.width for o in outs))
+
+    return EncoderInfo(
+        "+".join(parts),
+        spaces,
+        " + ".join(i.name for i in infos) + ", side by side",
+        build,
+        describe,
+        options,
+        {k: v for i in infos for k, v in i.defaults.items() if k in options},
+        choices={k: v for i in infos for k, v in i.choices.items() if k in options},
+    )
 
 
 def default_encoder(obs_space: str) -> str:
-    """The registry's default encoder for `obs_space` (the paper's choice)."""
-    check_obs_space(obs_space)
+    """The registry's default encoder for `obs_space` (the paper's choice; for a fused space, its parts')."""
+    if check_obs_space(obs_space) in FUSED_SPACES:
+        return "+".join(default_encoder(part) for part in FUSED_SPACES[obs_space])
     for info in _REGISTRY.values():
         if obs_space in info.default_for:
             return info.name
@@ -173,12 +259,18 @@ def _checked(name: str, obs_space: str, output: str, options: dict) -> EncoderIn
     unknown = sorted(set(options) - set(info.options))
     if unknown:
         raise TypeError(f"encoder {name!r} takes no option(s) {unknown}; it accepts: {', '.join(info.options)}")
+    for option, allowed in info.choices.items():
+        value = options.get(option)
+        if value is not None and value not in allowed:
+            raise ValueError(f"encoder {name!r}: {option}={value!r} is not one of {', '.join(map(str, allowed))}")
     return info
 
 
 def make_encoder(name: str, obs_space: str, output: str = "tokens", dim: int = 512, **options) -> nn.Module:
     """Build encoder `name` for `obs_space`; `options` are the encoder's own (`encoder_info(name).options`)."""
     info = _checked(name, obs_space, output, options)
+    if obs_space in FUSED_SPACES:
+        return info.build(obs_space, output, dim, **options)
     for key, option_set in info.option_sets.items():  # gather a shared option set's fields into one instance
         names = {f.name for f in dataclasses.fields(option_set)}
         options = {

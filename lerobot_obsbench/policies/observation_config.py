@@ -30,7 +30,6 @@ from lerobot_obsbench.schema import (
     POINT_FEATURES,
     POINT_NORMALIZATIONS,
     POINT_PIPELINES,
-    POINT_SPACES,
     PRIVILEGED_STATE_KEY,
     SAMPLING,
     STATE_KEY,
@@ -38,7 +37,10 @@ from lerobot_obsbench.schema import (
     camera_resolution,
     check_choice,
     check_obs_space,
+    has_positions,
     is_sensor_key,
+    reads_images,
+    reads_points,
     sensor_keys,
     stock_depth_key,
     validate_features,
@@ -57,6 +59,7 @@ ENCODER_FIELDS = {
     "image_input_size": "input_size",
     "zero_init_extra_channels": "zero_extra_channels",
     "point_pipeline": "pipeline",
+    "encoder_norm": "norm",
 }
 POINT_CHOICES = ("point_features", "sampling", "num_tokens", "knn", "point_pipeline")
 
@@ -74,6 +77,10 @@ class ObservationConfig:
     # Registered encoder name (`obsbench encoders` lists them). Empty: the registry's default for the space
     # (the paper's: resnet50 for images, pointnet for point clouds).
     encoder: str | None = None
+    # Normalisation layers of the encoder, where it offers a choice (`obsbench encoders` lists them): "batch",
+    # "layer" (dp3, pointnet) or "group", "batch" (spatial_softmax). None: the encoder's own (DP3's LayerNorm,
+    # the paper's BatchNorm for PointNet, GroupNorm for the keypoint encoder).
+    encoder_norm: str | None = None
     # Pretrained weights of the encoder: "imagenet" (ResNets; downloads torchvision's weights), a local file,
     # or a Hub file ORG/REPO:FILENAME. None (default) never downloads anything.
     pretrained: str | None = None
@@ -243,7 +250,7 @@ class ObservationConfig:
             if option in info.options or not self._non_default(name):
                 continue
             value, default = getattr(self, name), self.field_default(name)
-            if self.obs_space not in POINT_SPACES and name in POINT_CHOICES:
+            if not reads_points(self.obs_space) and name in POINT_CHOICES:
                 raise ValueError(
                     f"{name}={value!r} is a point-cloud design choice; obs_space={self.obs_space!r} has "
                     f"none (use obs_space='pointcloud' or leave {name}={default!r})"
@@ -252,23 +259,29 @@ class ObservationConfig:
                 f"{name}={value!r} is not an option of encoder {self.encoder!r} (it takes "
                 f"{', '.join(info.options) or 'no options'}); leave {name}={default!r}"
             )
+        for name, option in self.ENCODER_FIELDS.items():
+            allowed, value = info.choices.get(option), getattr(self, name)
+            if allowed and value is not None and value not in allowed:
+                raise ValueError(
+                    f"{name}={value!r}: encoder {self.encoder!r} takes {', '.join(allowed)} (or None, its own)"
+                )
         if self._non_default("depth_normalization") and self.obs_space not in DEPTH_IMAGE_SPACES:
             raise ValueError(
                 f"depth_normalization={self.depth_normalization!r} scales depth / xyz images; obs_space="
                 f"{self.obs_space!r} has none (spaces that do: {', '.join(DEPTH_IMAGE_SPACES)})"
             )
-        if self.workspace_jitter and self.obs_space not in POINT_SPACES:
+        if self.workspace_jitter and not reads_points(self.obs_space):
             raise ValueError(
                 f"workspace_jitter={self.workspace_jitter} jitters the point-cloud crop; obs_space={self.obs_space!r} "
                 "crops nothing (use obs_space='pointcloud' or leave workspace_jitter=0)"
             )
-        if self._non_default("point_normalization") and (self.obs_space not in POINT_SPACES or self.frame != "world"):
+        if self._non_default("point_normalization") and (not reads_points(self.obs_space) or self.frame != "world"):
             raise ValueError(
                 f"point_normalization={self.point_normalization!r} scales world-frame point clouds by the crop box; "
                 f"obs_space={self.obs_space!r} with frame={self.frame!r} has none (use obs_space='pointcloud' with "
                 "frame='world', or leave point_normalization='metres')"
             )
-        if self.frame != "world" and self.obs_space not in ("pointcloud", "pointmap"):
+        if self.frame != "world" and not has_positions(self.obs_space):
             raise ValueError(
                 f"frame={self.frame!r} changes point coordinates; obs_space={self.obs_space!r} has none "
                 "(use pointcloud or pointmap, or leave frame='world')"
@@ -298,7 +311,7 @@ class ObservationConfig:
         self.depth_calibration = {cam: v for cam, v in self.depth_calibration.items() if cam in self.cameras}
         self.input_features = {k: ft for k, ft in self.input_features.items() if not is_sensor_key(k)}
         state = self.input_features.get(STATE_KEY)
-        if self.frame == "ee" and self.obs_space in ("pointcloud", "pointmap"):
+        if self.frame == "ee" and has_positions(self.obs_space):
             if state is None or state.shape[0] < EE_POSE_SIZE:
                 raise SchemaError(
                     f"frame='ee' reads the end-effector pose from the last {EE_POSE_SIZE} values of "
@@ -352,5 +365,5 @@ class ObservationConfig:
         return {k: v for k, v in values.items() if k in encoder_info(self.encoder).options}
 
     def encoder_context(self) -> EncoderContext:
-        size = tuple(self.camera_resolution) if self.obs_space not in POINT_SPACES and self.camera_resolution else None
+        size = tuple(self.camera_resolution) if reads_images(self.obs_space) and self.camera_resolution else None
         return EncoderContext(cameras=len(self.cameras), image_size=size)
