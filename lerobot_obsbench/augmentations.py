@@ -165,16 +165,20 @@ class Augmenter(nn.Module):
 # ---- images -----------------------------------------------------------------------------------------------------
 
 
-def _crop_at(padded: Tensor, rows: Tensor, columns: Tensor, height: int, width: int) -> Tensor:
-    """Per-sample windows (height, width) of `padded` (N, C, H', W') starting at rows[i], columns[i]."""
-    n, c = padded.shape[:2]
-    v = (rows[:, None] + torch.arange(height, device=padded.device))[:, None, :, None]
-    u = (columns[:, None] + torch.arange(width, device=padded.device))[:, None, None, :]
-    return padded[
-        torch.arange(n, device=padded.device)[:, None, None, None],
-        torch.arange(c, device=padded.device)[None, :, None, None],
-        v,
-        u,
+def _window(images: Tensor, height: int, width: int, random: bool) -> Tensor:
+    """A (height, width) window of each image (N, C, H, W): at a random offset per image, or the centre one."""
+    n, c, full_h, full_w = images.shape
+    device = images.device
+    if random:
+        rows = torch.randint(0, full_h - height + 1, (n,), device=device)
+        columns = torch.randint(0, full_w - width + 1, (n,), device=device)
+    else:
+        rows = torch.full((n,), (full_h - height) // 2, device=device)
+        columns = torch.full((n,), (full_w - width) // 2, device=device)
+    v = (rows[:, None] + torch.arange(height, device=device))[:, None, :, None]
+    u = (columns[:, None] + torch.arange(width, device=device))[:, None, None, :]
+    return images[
+        torch.arange(n, device=device)[:, None, None, None], torch.arange(c, device=device)[None, :, None, None], v, u
     ]
 
 
@@ -185,12 +189,9 @@ def _crop_at(padded: Tensor, rows: Tensor, columns: Tensor, height: int, width: 
     "pad by 4/84 of the frame (edge pixels) and crop back at a random offset (DrQ)",
 )
 def random_shift(images: Tensor, training: bool) -> Tensor:
-    n, _, height, width = images.shape
+    height, width = images.shape[-2:]
     pad = max(1, round(SHIFT_FRACTION * max(height, width)))
-    padded = F.pad(images, (pad, pad, pad, pad), mode="replicate")
-    rows = torch.randint(0, 2 * pad + 1, (n,), device=images.device)
-    columns = torch.randint(0, 2 * pad + 1, (n,), device=images.device)
-    return _crop_at(padded, rows, columns, height, width)
+    return _window(F.pad(images, (pad, pad, pad, pad), mode="replicate"), height, width, random=True)
 
 
 @register_augmentation(
@@ -200,16 +201,9 @@ def random_shift(images: Tensor, training: bool) -> Tensor:
     "a random 90% crop in training, the centre crop at test, resized back to the frame (Diffusion Policy)",
 )
 def random_crop(images: Tensor, training: bool) -> Tensor:
-    n, _, height, width = images.shape
-    crop_h, crop_w = max(1, round(CROP_FRACTION * height)), max(1, round(CROP_FRACTION * width))
-    if training:
-        rows = torch.randint(0, height - crop_h + 1, (n,), device=images.device)
-        columns = torch.randint(0, width - crop_w + 1, (n,), device=images.device)
-    else:
-        rows = torch.full((n,), (height - crop_h) // 2, device=images.device)
-        columns = torch.full((n,), (width - crop_w) // 2, device=images.device)
-    crops = _crop_at(images, rows, columns, crop_h, crop_w)
-    return F.interpolate(crops, size=(height, width), mode="bilinear", align_corners=False)
+    height, width = images.shape[-2:]
+    crop = _window(images, max(1, round(CROP_FRACTION * height)), max(1, round(CROP_FRACTION * width)), training)
+    return F.interpolate(crop, size=(height, width), mode="bilinear", align_corners=False)
 
 
 def _factor(n: int, like: Tensor) -> Tensor:
