@@ -87,6 +87,23 @@ def test_augmentations_are_an_axis_per_space_whose_unaugmented_runs_keep_their_i
     assert "--policy.augment=random_shift+colour_jitter" in command
 
 
+def test_space_overrides_set_fields_for_one_space_only():
+    plain = {r.obs_space: r for r in parse_grid({**BASE, "obs_spaces": ["rgb", "pointcloud"]}).expand()}
+    grid = {
+        **BASE,
+        "obs_spaces": ["rgb", "pointcloud"],
+        "encoders": {"rgb": ["spatial_softmax"], "pointcloud": ["dp3"]},
+        "space_overrides": {"rgb": {"encoder_norm": "batch"}},
+    }
+    runs = {r.obs_space: r for r in parse_grid(grid).expand()}
+    assert dict(runs["rgb"].policy_overrides) == {"encoder_norm": "batch"}
+    assert "encoder_norm" not in dict(runs["pointcloud"].policy_overrides)
+    assert "--policy.encoder_norm=batch" in runs["rgb"].policy_args()
+    no_override = {**grid, "space_overrides": {}}
+    assert {r.obs_space: r.run_id for r in parse_grid(no_override).expand()}["pointcloud"] == runs["pointcloud"].run_id
+    assert plain["rgb"].run_id != runs["rgb"].run_id
+
+
 def test_run_id_is_a_hash_of_the_resolved_config():
     a, b = parse_grid({**BASE, "learning_rates": [1e-4, 1e-3]}).expand()[:2]
     assert a.run_id != b.run_id and a.lr != b.lr
@@ -122,6 +139,13 @@ def test_run_id_is_a_hash_of_the_resolved_config():
         ({"augmentations": {"rgb": ["", None]}}, ["lists a recipe twice"]),
         ({"augmentations": ["random_shift"]}, ["maps spaces to recipes"]),
         ({"policy_overrides": {"augment": "random_shift"}}, ["sets --policy.augment", "augmentations"]),
+        ({"space_overrides": {"depth": {"encoder_norm": "batch"}}}, ["space_overrides names spaces ['depth']"]),
+        ({"space_overrides": {"rgb": {"encoder": "resnet50"}}}, ["space_overrides.rgb sets --policy.encoder"]),
+        ({"space_overrides": {"rgb": ["batch"]}}, ["space_overrides maps spaces to --policy.* fields"]),
+        (
+            {"space_overrides": {"rgb": {"encoder_norm": "batch"}}},
+            ["encoder_norm='batch' is not an option", "resnet18"],
+        ),
     ],
 )
 def test_bad_grids_fail_with_the_valid_choices(change, words):

@@ -261,6 +261,9 @@ class Grid:
     episode_length: int | None = None
     perturbations: list[str] = field(default_factory=list)
     policy_overrides: dict[str, object] = field(default_factory=dict)
+    # obs_space -> `--policy.*` fields for that space's runs only (e.g. {rgb: {encoder_norm: batch}}), applied over
+    # policy_overrides
+    space_overrides: dict[str, dict[str, object]] = field(default_factory=dict)
     variants: list[dict[str, object]] = field(default_factory=lambda: [{}])  # extra --policy.* sets, one axis
     # evaluate the checkpoints another grid trained (its output directory) instead of training
     checkpoints_from: str | None = None
@@ -291,7 +294,12 @@ class Grid:
             self.tasks, self.obs_spaces, self.policies, self.variants, self.demos, self.learning_rates, self.seeds
         ):
             unit, budget = self.budget(policy)
-            overrides = {**task_overrides(task, space), **self.policy_overrides, **variant}
+            overrides = {
+                **task_overrides(task, space),
+                **self.policy_overrides,
+                **self.space_overrides.get(space, {}),
+                **variant,
+            }
             rlbench = grid_task_name(task) is not None
             for encoder, augment in itertools.product(self.encoders[space], self.augmentations.get(space, [""])):
                 runs.append(
@@ -490,6 +498,14 @@ def _check_values(values: dict, name: str) -> None:
                 )
     if not isinstance(values.get("policy_overrides", {}), dict):
         raise GridError(f"{name}: policy_overrides is a mapping of --policy.* fields to values")
+    per_space = values.get("space_overrides", {})
+    if not isinstance(per_space, dict) or not all(isinstance(v, dict) for v in per_space.values()):
+        raise GridError(
+            f"{name}: space_overrides maps spaces to --policy.* fields, e.g. {{rgb: {{encoder_norm: batch}}}}"
+        )
+    extra = [s for s in per_space if s not in values.get("obs_spaces", [])]
+    if extra:
+        raise GridError(f"{name}: space_overrides names spaces {extra} that are not in obs_spaces")
 
 
 def parse_grid(data: dict, name: str = "grid") -> Grid:
@@ -584,7 +600,11 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
         )
     if not grid.variants or not all(isinstance(v, dict) for v in grid.variants):
         raise GridError(f"{name}: variants is a list of mappings of --policy.* fields, e.g. [{{}}, {{sampling: pre}}]")
-    for where, fields in (("policy_overrides", grid.policy_overrides), *(("variants", v) for v in grid.variants)):
+    for where, fields in (
+        ("policy_overrides", grid.policy_overrides),
+        *((f"space_overrides.{space}", v) for space, v in grid.space_overrides.items()),
+        *(("variants", v) for v in grid.variants),
+    ):
         clash = sorted(set(fields) & set(AXIS_FIELDS))
         if clash:
             field_name = clash[0]
@@ -641,14 +661,18 @@ def check_policy_configs(grid: Grid, name: str) -> None:
 
     seen = set()
     for run in grid.expand():
-        key = json.dumps([run.policy, run.obs_space, run.encoder, run.policy_overrides, run.lr], default=str)
+        key = json.dumps(
+            [run.policy, run.obs_space, run.encoder, run.policy_overrides, run.augment, run.lr], default=str
+        )
         if key in seen:
             continue
         seen.add(key)
         config_class = PreTrainedConfig.get_choice_class(run.policy)
         unknown = sorted(set(dict(run.policy_overrides)) - set(config_class.__dataclass_fields__))
         if unknown:
-            raise GridError(f"{name}: {run.policy} has no fields {unknown} (policy_overrides / variants)")
+            raise GridError(
+                f"{name}: {run.policy} has no fields {unknown} (policy_overrides / space_overrides / variants)"
+            )
         args = [arg.replace("--policy.", "--", 1) for arg in run.policy_args()]
         try:  # lerobot-train's own parser, on the arguments it will get
             draccus.parse(config_class, args=[*args, "--device=cpu"])
