@@ -70,7 +70,7 @@ _REGISTRY: dict[str, AugmentationInfo] = {}
 
 def register_augmentation(name: str, kind: str, spaces: tuple[str, ...], summary: str, reach=None):
     """Decorator registering a transform under `name`: `colour` and `image` transforms take and return one
-    tensor; `points` transforms take (xyz (B, N, 3), valid (B, N), centre (3,), half (3,)) and return (xyz, valid)
+    tensor; `points` transforms take (xyz (B, N, 3), valid (B, N), centre (3,) or (B, 3)) and return (xyz, valid)
     and must declare their `reach`."""
     if kind not in KINDS:
         raise ValueError(f"augmentation {name!r}: kind must be one of {KINDS}; got {kind!r}")
@@ -152,10 +152,9 @@ class Augmenter(nn.Module):
         """`box` (6,) or (B, 6): the crop box, whose centre the rotation and scaling keep."""
         if not self.training:
             return xyz, valid
-        bounds = box.reshape(*box.shape[:-1], 3, 2)
-        centre, half = bounds.mean(-1), (bounds[..., 1] - bounds[..., 0]) / 2
+        centre = box.reshape(*box.shape[:-1], 3, 2).mean(-1)
         for info in self.by_kind["points"]:
-            xyz, valid = info.apply(xyz, valid, centre, half)
+            xyz, valid = info.apply(xyz, valid, centre)
         return xyz, valid
 
     def extra_repr(self) -> str:
@@ -244,7 +243,7 @@ def _radius_xy(half: Tensor) -> float:
     "rotate the scene about the vertical axis through the crop box's centre, ±5°",
     reach=lambda half: 2 * math.sin(math.radians(POINT_ROTATION_DEG) / 2) * _radius_xy(half),
 )
-def point_rotate(xyz: Tensor, valid: Tensor, centre: Tensor, half: Tensor) -> tuple[Tensor, Tensor]:
+def point_rotate(xyz: Tensor, valid: Tensor, centre: Tensor) -> tuple[Tensor, Tensor]:
     angle = _uniform((len(xyz),), xyz, math.radians(POINT_ROTATION_DEG))
     cos, sin = angle.cos()[:, None], angle.sin()[:, None]
     centre = centre.expand(len(xyz), 3)[:, None, :]
@@ -261,7 +260,7 @@ def point_rotate(xyz: Tensor, valid: Tensor, centre: Tensor, half: Tensor) -> tu
     "scale the scene about the crop box's centre by 1 ± 0.05",
     reach=lambda half: POINT_SCALE / (1 - POINT_SCALE) * float(half.norm()),
 )
-def point_scale(xyz: Tensor, valid: Tensor, centre: Tensor, half: Tensor) -> tuple[Tensor, Tensor]:
+def point_scale(xyz: Tensor, valid: Tensor, centre: Tensor) -> tuple[Tensor, Tensor]:
     factor = 1 + _uniform((len(xyz), 1, 1), xyz, POINT_SCALE)
     centre = centre.expand(len(xyz), 3)[:, None, :]
     return (xyz - centre) * factor + centre, valid
@@ -274,7 +273,7 @@ def point_scale(xyz: Tensor, valid: Tensor, centre: Tensor, half: Tensor) -> tup
     "move the scene by up to ±2 cm per axis",
     reach=lambda half: POINT_TRANSLATION_M * math.sqrt(3),
 )
-def point_translate(xyz: Tensor, valid: Tensor, centre: Tensor, half: Tensor) -> tuple[Tensor, Tensor]:
+def point_translate(xyz: Tensor, valid: Tensor, centre: Tensor) -> tuple[Tensor, Tensor]:
     return xyz + _uniform((len(xyz), 1, 3), xyz, POINT_TRANSLATION_M), valid
 
 
@@ -285,7 +284,7 @@ def point_translate(xyz: Tensor, valid: Tensor, centre: Tensor, half: Tensor) ->
     "move each point by Gaussian noise (2 mm, clipped to 5 mm) per axis",
     reach=lambda half: JITTER_CLIP_M * math.sqrt(3),
 )
-def point_jitter(xyz: Tensor, valid: Tensor, centre: Tensor, half: Tensor) -> tuple[Tensor, Tensor]:
+def point_jitter(xyz: Tensor, valid: Tensor, centre: Tensor) -> tuple[Tensor, Tensor]:
     noise = (torch.randn_like(xyz) * POINT_JITTER_M).clamp(-JITTER_CLIP_M, JITTER_CLIP_M)
     return xyz + noise, valid
 
@@ -293,5 +292,5 @@ def point_jitter(xyz: Tensor, valid: Tensor, centre: Tensor, half: Tensor) -> tu
 @register_augmentation(
     "point_dropout", "points", POINT_AUGMENTED, "drop 10% of the points at random", reach=lambda half: 0.0
 )
-def point_dropout(xyz: Tensor, valid: Tensor, centre: Tensor, half: Tensor) -> tuple[Tensor, Tensor]:
+def point_dropout(xyz: Tensor, valid: Tensor, centre: Tensor) -> tuple[Tensor, Tensor]:
     return xyz, valid & (torch.rand(valid.shape, device=valid.device) >= POINT_DROPOUT)
