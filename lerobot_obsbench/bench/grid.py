@@ -364,7 +364,7 @@ GRID_FIELDS = set(Grid.__dataclass_fields__)
 PER_POLICY = ("batch_size", "checkpoints", *BUDGET_UNITS)
 
 
-def _resolve_encoders(spec, spaces: list[str], preset: str) -> dict[str, list[str]]:
+def _resolve_encoders(spec, spaces: list[str], preset: str, name: str) -> dict[str, list[str]]:
     """`encoders` may be omitted (the preset's choice per space), a list (each space takes the listed
     encoders that accept it; every listed encoder must fit some space) or a mapping space -> encoders (strict)."""
     from lerobot_obsbench.encoders import available_encoders, check_encoder, encoder_info
@@ -372,9 +372,7 @@ def _resolve_encoders(spec, spaces: list[str], preset: str) -> dict[str, list[st
     if spec is None:
         return {s: [preset_encoder(preset, s)] for s in spaces}
     if isinstance(spec, dict):
-        extra = [s for s in spec if s not in spaces]
-        if extra:
-            raise GridError(f"encoders names spaces {extra} that are not in obs_spaces {spaces}")
+        _check_spaces_listed(spec, spaces, "encoders", name)
         resolved = {}
         for space in spaces:
             names = _as_list(spec.get(space, preset_encoder(preset, space)), f"encoders.{space}")
@@ -405,6 +403,13 @@ def _resolve_encoders(spec, spaces: list[str], preset: str) -> dict[str, list[st
     return resolved
 
 
+def _check_spaces_listed(mapping: dict, spaces: list[str], field_name: str, name: str) -> None:
+    """A per-space mapping names only the grid's spaces."""
+    extra = [s for s in mapping if s not in spaces]
+    if extra:
+        raise GridError(f"{name}: {field_name} names spaces {extra} that are not in obs_spaces {spaces}")
+
+
 def _resolve_augmentations(spec, spaces: list[str], name: str) -> dict[str, list[str]]:
     """`augmentations`: a mapping space -> recipes (`--policy.augment` values, "" or null for none), each recipe
     checked against its space."""
@@ -414,9 +419,7 @@ def _resolve_augmentations(spec, spaces: list[str], name: str) -> dict[str, list
         return {}
     if not isinstance(spec, dict):
         raise GridError(f"{name}: augmentations maps spaces to recipes, e.g. {{rgb: ['', random_shift]}}; got {spec!r}")
-    extra = [s for s in spec if s not in spaces]
-    if extra:
-        raise GridError(f"{name}: augmentations names spaces {extra} that are not in obs_spaces {spaces}")
+    _check_spaces_listed(spec, spaces, "augmentations", name)
     resolved = {}
     for space, recipes in spec.items():
         recipes = ["" if r is None else r for r in _as_list(recipes, f"augmentations.{space}")]
@@ -503,9 +506,7 @@ def _check_values(values: dict, name: str) -> None:
         raise GridError(
             f"{name}: space_overrides maps spaces to --policy.* fields, e.g. {{rgb: {{encoder_norm: batch}}}}"
         )
-    extra = [s for s in per_space if s not in values.get("obs_spaces", [])]
-    if extra:
-        raise GridError(f"{name}: space_overrides names spaces {extra} that are not in obs_spaces")
+    _check_spaces_listed(per_space, values.get("obs_spaces", []), "space_overrides", name)
 
 
 def parse_grid(data: dict, name: str = "grid") -> Grid:
@@ -558,7 +559,7 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
         learning_rates=[float(lr) for lr in _as_list(values.get("learning_rates", [1e-4]), "learning_rates")],
         demos=_as_list(values.get("demos", [100]), "demos"),
         preset=preset,
-        encoders=_resolve_encoders(values.get("encoders"), spaces, preset),
+        encoders=_resolve_encoders(values.get("encoders"), spaces, preset, name),
         augmentations=_resolve_augmentations(values.get("augmentations"), spaces, name),
         **{
             k: values[k]
