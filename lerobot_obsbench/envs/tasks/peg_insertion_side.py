@@ -14,6 +14,10 @@ entrance or inside), `insert` (= success).
 **Expert:** grasp the peg behind its middle, lift, line it up 2 cm out of the hole's entrance, push it home
 along its axis, closing the loop on the peg's pose in the gripper. 9/20 over seeds 100000.. (mean 80.7 steps);
 ManiSkill's motion planner reaches ~65%.
+
+**OBSBench's camera and crop box:** ManiSkill's own camera (it looks along the table from behind the peg's
+region) keeps the peg and the box large at 64² (tens of pixels each), so the task keeps it; point clouds are
+cropped to the peg's and the box's spawn regions (tests/test_task_cameras.py checks both).
 """
 
 from __future__ import annotations
@@ -44,6 +48,11 @@ class PegInsertionSide(Task):
     camera_names = ("base_camera", "hand_camera")  # ManiSkill runs it with the wrist-camera Panda
     sub_success = ("grasp", "align", "insert")
     expert = PegInsertionSideExpert
+    # bounding spheres of the longest peg (half size 0.125 x 0.025 x 0.025) and of its box, as long
+    objects = {PEG: 0.13, "box": 0.14}
+    # the peg's (x in [-0.1, 0.1], y in [-0.3, 0]) and the box's (x in [-0.05, 0.05], y in [0.2, 0.4]) spawn
+    # regions plus their bounding radii, from 5 mm above the table (dropping it) to 30 cm
+    workspace = (-0.25, 0.25, -0.45, 0.55, 0.005, 0.3)
 
     def milestone(self, name: str, ms_env, info: dict, success):
         if name == "insert":

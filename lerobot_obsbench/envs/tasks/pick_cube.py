@@ -10,6 +10,10 @@ xy in [-0.1, 0.1]^2 and its height 0..0.3 m above the cube's.
 
 **Expert:** top-down grasp aligned with the cube's faces, carry to the goal, hold still. 20/20 over seeds
 100000.. (mean 26.6 steps; `obsbench demos --task PickCube-v1 --episodes 20`).
+
+**OBSBench's camera and crop box:** ManiSkill's camera shows the cube as ~6 pixels of a 64² frame; the task camera
+looks at the spawn square from closer, and point clouds are cropped to the square and the air above it, where the
+goal is (tests/test_task_cameras.py checks both).
 """
 
 from __future__ import annotations
@@ -41,3 +45,8 @@ class PickCube(Task):
     privileged_actors = ("cube", "goal_site")
     objects = {"cube": 0.035}  # 2 cm half-size cube
     expert = PickCubeExpert
+    # closer to the spawn square than ManiSkill's camera, with a narrower field of view
+    camera = ((0.35, 0.0, 0.45), (0.0, 0.0, 0.05), 0.9)
+    # the cube's and the goal's square (±0.1 m) plus the cube's bounding radius, up to above the highest goal
+    # (0.3 m over the cube), from 5 mm above the table (dropping it)
+    workspace = (-0.15, 0.15, -0.15, 0.15, 0.005, 0.4)
