@@ -259,6 +259,7 @@ class ObsBenchEnv(gym.Env):
                 render_backend=self.render_backend,
             )
             obs, _ = self._env.reset(seed=0)
+            self._drop_unread_cameras()
         except Exception as err:
             if self.sim_backend == "physx_cuda" and not physx_gpu_library().is_file():
                 raise GpuSimulationError(
@@ -272,6 +273,27 @@ class ObsBenchEnv(gym.Env):
                 raise RenderingError(f"{RENDERING_HELP} (SAPIEN: {err})") from err
             raise
         return obs
+
+    def _drop_unread_cameras(self) -> None:
+        """Take the cameras no observation reads off the scene: ManiSkill stops rendering them, and a camera mounted
+        on the robot (the wrist camera of StackCube and PegInsertionSide) is no longer drawn in the other cameras'
+        views, since its visual mesh costs more to draw on a CPU renderer than the rest of the scene (its mass and
+        collision box stay). ManiSkill rebuilds its sensors when it reconfigures the scene, so this runs after every
+        reset; the mesh stays drawn under GPU simulation, which cannot hide a body."""
+        if not self.cameras:  # nothing renders: the env observes state only
+            return
+        import sapien
+
+        ms_env = self._env.unwrapped
+        sensors = ms_env._sensors  # the same dict as its scene's `sensors`, which rendering walks
+        for name in [name for name in sensors if name not in self.cameras]:
+            mount = getattr(sensors.pop(name).config, "mount", None)
+            if mount is None or ms_env.scene.gpu_sim_enabled:
+                continue
+            for part in mount._objs:
+                body = getattr(part, "entity", part).find_component_by_type(sapien.render.RenderBodyComponent)
+                if body is not None:
+                    body.visibility = 0
 
     # ---- observation conversion --------------------------------------------------------------------------
 
@@ -322,6 +344,7 @@ class ObsBenchEnv(gym.Env):
         if seed is not None and len(seed) != self.num_envs:
             raise ValueError(f"reset_all needs one seed per env ({self.num_envs}); got {len(seed)}")
         obs, info = self._env.reset(seed=seed, options=options)
+        self._drop_unread_cameras()
         if self.spec_.initialize(self.unwrapped_ms):
             obs = self.unwrapped_ms.get_obs()
         self._milestones = {}
