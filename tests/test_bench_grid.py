@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -10,8 +11,10 @@ import yaml
 
 from lerobot_obsbench.bench.grid import EvalSpec, GridError, RunSpec, load_grid, parse_grid, preset_grids
 from lerobot_obsbench.bench.results import append_result
+from lerobot_obsbench.bench.runner import demo_dir
 from lerobot_obsbench.bench.units import train_command
 from lerobot_obsbench.cli import main
+from lerobot_obsbench.envs.base_task import task_spec
 from lerobot_obsbench.envs.perturbations import orbit_eye, parse_perturbation
 
 BASE = {"tasks": ["PushCube-v1"], "obs_spaces": ["rgb", "pointcloud"], "steps": 10, "preset": "tiny"}
@@ -490,3 +493,68 @@ def test_the_gpu_cost_model_is_the_device_checks_measurement():
     paper = TRAIN_SAMPLES_PER_SECOND[("cuda", "paper")]
     assert (paper["image"], paper["point"]) == (round(mean(images), -1), round(mean(points), -1))
     assert paper["none"] == paper["image"]  # not measured: the image rate bounds the blind policy's time
+
+
+def _wall_hours(text: str, workers: int) -> float:
+    return float(re.search(rf"with {workers} local workers: ~([0-9.]+) h of wall time", text).group(1))
+
+
+def test_cpu_suite_schedules_every_task_with_both_controls_and_fits_three_hours(capsys):
+    grid = load_grid("cpu-suite")
+    runs = grid.expand()
+    tasks = ["PushCubeWide-v1", "PickCube-v1", "StackCube-v1", "PegInsertionSide-v1"]
+    assert grid.tasks == tasks
+    assert {(r.task, r.obs_space) for r in runs} == {
+        (t, s) for t in tasks for s in ("none", "state", "rgb", "pointcloud")
+    }
+    assert all(
+        sorted(r.seed for r in runs if (r.task, r.obs_space) == (t, s)) == [1000, 1001, 1002]
+        for t in tasks
+        for s in ("none", "state", "rgb", "pointcloud")
+    )
+    for run in runs:  # each task's own crop box reaches its point-cloud runs
+        workspace = dict(run.policy_overrides).get("workspace")
+        expected = list(task_spec(run.task).workspace) if run.obs_space == "pointcloud" else None
+        assert workspace == expected, (run.task, run.obs_space)
+    # PushCubeWide-v1 is the quick grid's setting, run for run: a copy of its outputs is reused
+    pushes = {r.run_id for r in runs if r.task == "PushCubeWide-v1"}
+    assert pushes == {r.run_id for r in load_grid("quick").expand()}
+    assert main(["run", "cpu-suite", "--dry-run", "--out", "/nonexistent/out", "--workers", "2"]) == 0
+    text = capsys.readouterr().out
+    assert "48 runs, 0 already trained, 48 to train; 0 of 96 test evaluations done" in text
+    assert "demonstrations to record: 840 episodes of PushCubeWide-v1 (210), PickCube-v1 (210)" in text
+    assert _wall_hours(text, 2) <= 3.0
+
+
+def test_gpu_day_fits_one_gpu_day_with_the_papers_encoders(capsys):
+    runs = load_grid("gpu-day").expand()
+    assert {r.preset for r in runs} == {"paper"}
+    assert {(r.obs_space, r.encoder) for r in runs} == {
+        ("none", "blind"),
+        ("state", "oracle"),
+        ("rgb", "resnet50"),
+        ("rgbd", "resnet50"),
+        ("pointcloud", "pointnet"),
+    }
+    assert {r.task for r in runs} == set(load_grid("cpu-suite").tasks)
+    assert main(["run", "gpu-day", "--dry-run", "--out", "/nonexistent/out", "--device", "cuda"]) == 0
+    text = capsys.readouterr().out
+    gpu_hours = float(re.search(r"([0-9.]+) h on one H200 GPU", text).group(1))
+    assert 0 < gpu_hours <= 24.0
+
+
+def test_dry_run_prices_only_the_demonstrations_still_to_record(tmp_path, capsys):
+    grid = tmp_path / "g.yaml"
+    grid.write_text("tasks: [PushCube-v1, PickCube-v1]\nobs_spaces: [none]\nsteps: 5\npreset: tiny\ndemos: 2000\n")
+    assert main(["run", str(grid), "--out", str(tmp_path), "--dry-run"]) == 0
+    first = capsys.readouterr().out
+    assert "demonstrations to record: 4000 episodes of PushCube-v1 (2000), PickCube-v1 (2000)" in first
+    run = next(r for r in load_grid(grid).expand() if r.task == "PushCube-v1")
+    recorded = demo_dir(tmp_path, run, 2000) / "meta"
+    recorded.mkdir(parents=True)
+    (recorded / "info.json").write_text("{}")
+    assert main(["run", str(grid), "--out", str(tmp_path), "--dry-run"]) == 0
+    second = capsys.readouterr().out
+    assert "demonstrations to record: 2000 episodes of PickCube-v1 (2000)" in second
+    cost = lambda text: float(re.search(r"([0-9.]+) h on a 2-core CPU", text).group(1))  # noqa: E731
+    assert cost(second) < cost(first)

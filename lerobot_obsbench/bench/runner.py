@@ -86,7 +86,10 @@ def eval_batch_size(grid: Grid, device: str, cores: int | None = None) -> int:
     return min(default, cores) if cores and device_kind(device) == "cpu" else default
 
 
-def eval_seconds(spec: EvalSpec, device: str, rlbench: bool = False, batch_size: int = 1, image_size: int = 128):
+def episode_seconds(
+    episodes: int, max_steps: int, device: str, rlbench: bool = False, batch_size: int = 1, image_size: int = 128
+) -> float:
+    """Running `episodes` simulated episodes of up to `max_steps` steps, `batch_size` in lockstep."""
     # successful episodes end early: count ~60% of the budget
     if rlbench:
         rate = RLBENCH_STEPS_PER_SECOND[device_kind(device)]
@@ -95,7 +98,17 @@ def eval_seconds(spec: EvalSpec, device: str, rlbench: bool = False, batch_size:
         rate = measured[max(n for n in measured if n <= batch_size)]
         if device_kind(device) == "cpu":  # the CPU renderer slows with the frame; the GPU's did not from 64² to 128²
             rate *= min(1.0, EVAL_RATE_IMAGE_SIZE / image_size)
-    return spec.episodes * spec.max_steps * 0.6 / rate + 10
+    return episodes * max_steps * 0.6 / rate + 10
+
+
+def eval_seconds(spec: EvalSpec, device: str, rlbench: bool = False, batch_size: int = 1, image_size: int = 128):
+    return episode_seconds(spec.episodes, spec.max_steps, device, rlbench, batch_size, image_size)
+
+
+def demo_seconds(grid: Grid, run: RunSpec, episodes: int, device: str) -> float:
+    """Recording `episodes` scripted demonstrations of `run`'s task, one env: an expert's step costs what a
+    policy's does in evaluation (the simulator and renderer dominate); failed attempts are not counted."""
+    return episode_seconds(episodes, grid.max_steps(run), device, image_size=run.image_size)
 
 
 def demo_dir(out: Path, run: RunSpec, episodes: int) -> Path:
@@ -161,7 +174,7 @@ def planned_steps(run: RunSpec, out: Path) -> tuple[int, bool]:
     return run.steps(run.demos * DEMO_FRAMES_PER_EPISODE), False
 
 
-def print_plan(grid: Grid, work: Work, out: Path, device: str, echo=print) -> None:
+def print_plan(grid: Grid, work: Work, out: Path, device: str, echo=print, workers: int = 1) -> None:
     done_evals = sum(s.eval_id in work.evaluated for r in work.runs for s in grid.evaluations(r))
     all_evals = sum(len(grid.evaluations(r)) for r in work.runs)
     echo(
@@ -172,6 +185,19 @@ def print_plan(grid: Grid, work: Work, out: Path, device: str, echo=print) -> No
     if grid.checkpoints_from:
         echo(f"  evaluates the checkpoints trained by {grid.checkpoints_from} (trains nothing)")
     totals = {"steps": 0, "samples": 0, "episodes": 0, "cpu": 0.0, "cuda": 0.0}
+    to_record = [
+        (run, episodes)
+        for run, episodes in work.demos.values()
+        if run.rlbench_task is None and not (demo_dir(out, run, episodes) / "meta" / "info.json").is_file()
+    ]
+    for run, episodes in to_record:
+        for kind in ("cpu", "cuda"):
+            totals[kind] += demo_seconds(grid, run, episodes, kind)
+    if to_record:
+        echo(
+            f"  demonstrations to record: {sum(n for _, n in to_record)} episodes of "
+            + ", ".join(f"{run.task} ({n})" for run, n in to_record)
+        )
     for run in work.runs:
         steps, exact = planned_steps(run, out)
         unit = run.budget_unit
@@ -206,8 +232,13 @@ def print_plan(grid: Grid, work: Work, out: Path, device: str, echo=print) -> No
     )
     echo(
         f"  rough cost with one worker: {totals['cpu'] / 3600:.1f} h on a 2-core CPU, {totals['cuda'] / 3600:.1f} h "
-        f"on one H200 GPU (planning on {device}; recorded demonstrations not counted)"
+        f"on one H200 GPU (planning on {device}; demonstrations to record included, their failed attempts not)"
     )
+    if workers > 1:
+        echo(
+            f"  with {workers} local workers: ~{totals['cpu'] / 3600 / workers:.1f} h of wall time on a 2-core CPU "
+            "(the one-worker cost shared evenly; measured against real grids in docs/performance.md)"
+        )
     echo(f"  {RATES_MEASURED_ON}")
     if len(set(grid.seeds)) < 2:
         echo(
@@ -542,7 +573,7 @@ def run_grid(
     out = Path(out)
     check_tasks(grid, dry_run, echo)
     if dry_run:
-        print_plan(grid, load_work(grid, out, echo), out, device, echo)
+        print_plan(grid, load_work(grid, out, echo), out, device, echo, workers)
         return 0
     # lockstep envs may use the cores a unit has to itself: the machine's with one local worker (unless --threads
     # says fewer), its share with several, one CPU under Ray (what a unit asks for there)
@@ -552,7 +583,7 @@ def run_grid(
     eval_cores = None if whole_machine else (threads or 1)
     with exclusive_output(out, f"obsbench run {grid.name}"):  # a second runner on `out` is refused
         work = load_work(grid, out, echo)
-        print_plan(grid, work, out, device, echo)
+        print_plan(grid, work, out, device, echo, workers)
         units = make_engine(engine, workers, address)
         runner = Driver(grid, work, out, units, device, loader_workers, threads, echo, eval_cores)
         try:

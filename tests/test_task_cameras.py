@@ -1,0 +1,89 @@
+"""Each task of the cpu-suite grid sees its objects: at every episode start over 50 test seeds the objects lie in
+the task's point-cloud crop box and show enough pixels in its camera's 64² frame; and a camera no policy reads is
+taken off the scene. Needs the simulator (scripts/setup_system.sh): marked slow."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lerobot_obsbench.bench.diagnostics import object_positions, pixel_diameters
+from lerobot_obsbench.bench.grid import load_grid
+from lerobot_obsbench.envs.base_task import eval_seeds, task_spec
+from lerobot_obsbench.envs.maniskill import ObsBenchEnv
+
+pytestmark = pytest.mark.slow
+
+SUITE = load_grid("cpu-suite").tasks
+SIZE = 64
+EPISODES = 50
+# at least a 3x3 patch of each object in the frame, and a bounding sphere at least 4 pixels across
+MIN_PIXELS = 9
+MIN_DIAMETER = 4.0
+
+
+def _object_pixels(env: ObsBenchEnv, actor) -> int:
+    """Pixels of `actor` in the base camera's current frame (ManiSkill's per-actor segmentation)."""
+    camera = env.unwrapped_ms._sensors["base_camera"]
+    env.unwrapped_ms.scene.update_render()
+    camera.capture()
+    segmentation = camera.get_obs(rgb=False, depth=False, position=False, segmentation=True)["segmentation"]
+    return int(np.isin(segmentation[0, ..., 0].cpu().numpy(), actor.per_scene_id.cpu().numpy()).sum())
+
+
+@pytest.mark.parametrize("task", SUITE)
+def test_objects_lie_in_the_crop_box_and_fill_pixels_at_every_start(task):
+    spec = task_spec(task)
+    assert spec.objects and spec.workspace is not None, f"{task}: a suite task names its objects and crop box"
+    lo, hi = np.array(spec.workspace[0::2]), np.array(spec.workspace[1::2])
+    env = ObsBenchEnv(task, image_size=SIZE)
+    pixels = {name: [] for name in spec.objects}
+    try:
+        for seed in eval_seeds(EPISODES):
+            env.reset(seed=seed)
+            frame = env.schema_frame(env.unwrapped_ms.get_obs())
+            privileged = frame["observation.privileged_state"][None]
+            K, cam2world = frame["observation.intrinsics.base_camera"], frame["observation.cam2world.base_camera"]
+            for name, (centre, radius) in object_positions(privileged, spec.privileged_actors, spec.objects).items():
+                centre = centre[0]
+                # the whole bounding sphere across the table, its centre within the box's heights
+                assert np.all(centre[:2] - radius >= lo[:2]) and np.all(centre[:2] + radius <= hi[:2]), (
+                    f"{task} seed {seed}: {name} at {centre.round(3)} (radius {radius}) leaves {spec.workspace}"
+                )
+                assert lo[2] <= centre[2] <= hi[2], f"{task} seed {seed}: {name} at height {centre[2]:.3f}"
+                diameter = pixel_diameters(centre[None], radius, K[None], cam2world[None])[0]
+                assert diameter >= MIN_DIAMETER, f"{task} seed {seed}: {name} spans {diameter:.1f} px"
+                pixels[name].append(_object_pixels(env, getattr(env.unwrapped_ms, name)))
+    finally:
+        env.close()
+    for name, counts in pixels.items():
+        assert min(counts) >= MIN_PIXELS, f"{task}: {name} shows {min(counts)} pixels at some start (of {counts})"
+
+
+def test_unread_wrist_camera_is_neither_rendered_nor_drawn():
+    import sapien
+
+    def mesh_visibility(env):
+        link = env.unwrapped_ms.agent.robot.links_map["camera_link"]
+        return [part.entity.find_component_by_type(sapien.render.RenderBodyComponent).visibility for part in link._objs]
+
+    base_only = ObsBenchEnv("StackCube-v1", image_size=SIZE)
+    both = ObsBenchEnv("StackCube-v1", image_size=SIZE, cameras=("base_camera", "hand_camera"))
+    try:
+        for seed in (0, 1):
+            base_only.reset(seed=seed)
+            both.reset(seed=seed)
+            assert list(base_only.unwrapped_ms._sensors) == ["base_camera"]
+            assert mesh_visibility(base_only) == [0.0]
+            assert sorted(both.unwrapped_ms._sensors) == ["base_camera", "hand_camera"]
+            assert mesh_visibility(both) == [1.0]
+            # the same scene, state for state: only the wrist camera's drawing differs
+            np.testing.assert_array_equal(
+                base_only.schema_frame(base_only.unwrapped_ms.get_obs())["observation.privileged_state"],
+                both.schema_frame(both.unwrapped_ms.get_obs())["observation.privileged_state"],
+            )
+            obs, *_ = base_only.step(np.zeros(base_only.action_space.shape, np.float32))
+            assert set(obs["pixels"]) == {"base_camera"}
+    finally:
+        base_only.close()
+        both.close()
