@@ -495,8 +495,9 @@ def test_the_gpu_cost_model_is_the_device_checks_measurement():
     assert paper["none"] == paper["image"]  # not measured: the image rate bounds the blind policy's time
 
 
-def _wall_hours(text: str, workers: int) -> float:
-    return float(re.search(rf"with {workers} local workers: ~([0-9.]+) h of wall time", text).group(1))
+def _hours(pattern: str, text: str) -> float:
+    """The hours a dry run's cost line gives: `pattern` with `HOURS` where the number stands."""
+    return float(re.search(re.escape(pattern).replace("HOURS", r"([0-9.]+)"), text).group(1))
 
 
 def test_cpu_suite_schedules_every_task_with_both_controls_and_fits_three_hours(capsys):
@@ -523,7 +524,7 @@ def test_cpu_suite_schedules_every_task_with_both_controls_and_fits_three_hours(
     text = capsys.readouterr().out
     assert "48 runs, 0 already trained, 48 to train; 0 of 96 test evaluations done" in text
     assert "demonstrations to record: 840 episodes of PushCubeWide-v1 (210), PickCube-v1 (210)" in text
-    assert _wall_hours(text, 2) <= 3.0
+    assert _hours("with 2 local workers: ~HOURS h of wall time", text) <= 3.0
 
 
 def test_gpu_day_fits_one_gpu_day_with_the_papers_encoders(capsys):
@@ -539,8 +540,7 @@ def test_gpu_day_fits_one_gpu_day_with_the_papers_encoders(capsys):
     assert {r.task for r in runs} == set(load_grid("cpu-suite").tasks)
     assert main(["run", "gpu-day", "--dry-run", "--out", "/nonexistent/out", "--device", "cuda"]) == 0
     text = capsys.readouterr().out
-    gpu_hours = float(re.search(r"([0-9.]+) h on one H200 GPU", text).group(1))
-    assert 0 < gpu_hours <= 24.0
+    assert 0 < _hours("HOURS h on one H200 GPU", text) <= 24.0
 
 
 def test_dry_run_prices_only_the_demonstrations_still_to_record(tmp_path, capsys):
@@ -556,5 +556,4 @@ def test_dry_run_prices_only_the_demonstrations_still_to_record(tmp_path, capsys
     assert main(["run", str(grid), "--out", str(tmp_path), "--dry-run"]) == 0
     second = capsys.readouterr().out
     assert "demonstrations to record: 2000 episodes of PickCube-v1 (2000)" in second
-    cost = lambda text: float(re.search(r"([0-9.]+) h on a 2-core CPU", text).group(1))  # noqa: E731
-    assert cost(second) < cost(first)
+    assert _hours("HOURS h on a 2-core CPU", second) < _hours("HOURS h on a 2-core CPU", first)
