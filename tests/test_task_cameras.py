@@ -22,6 +22,13 @@ MIN_PIXELS = 9
 MIN_DIAMETER = 4.0
 
 
+def _in_frame(centre, K, cam2world) -> bool:
+    """Whether the world point `centre` projects into the camera's SIZE² frame, in front of it."""
+    x, y, z = (np.linalg.inv(cam2world) @ np.append(centre, 1.0))[:3]
+    u, v = K[0, 0] * x / z + K[0, 2], K[1, 1] * y / z + K[1, 2]
+    return bool(z > 0 and 0 <= u <= SIZE and 0 <= v <= SIZE)
+
+
 def _object_pixels(env: ObsBenchEnv, actor) -> int:
     """Pixels of `actor` in the base camera's current frame (ManiSkill's per-actor segmentation)."""
     camera = env.unwrapped_ms._sensors["base_camera"]
@@ -51,6 +58,7 @@ def test_objects_lie_in_the_crop_box_and_fill_pixels_at_every_start(task):
                     f"{task} seed {seed}: {name} at {centre.round(3)} (radius {radius}) leaves {spec.workspace}"
                 )
                 assert lo[2] <= centre[2] <= hi[2], f"{task} seed {seed}: {name} at height {centre[2]:.3f}"
+                assert _in_frame(centre, K, cam2world), f"{task} seed {seed}: {name}'s centre is out of the frame"
                 diameter = pixel_diameters(centre[None], radius, K[None], cam2world[None])[0]
                 assert diameter >= MIN_DIAMETER, f"{task} seed {seed}: {name} spans {diameter:.1f} px"
                 pixels[name].append(_object_pixels(env, getattr(env.unwrapped_ms, name)))
@@ -60,26 +68,32 @@ def test_objects_lie_in_the_crop_box_and_fill_pixels_at_every_start(task):
         assert min(counts) >= MIN_PIXELS, f"{task}: {name} shows {min(counts)} pixels at some start (of {counts})"
 
 
-def test_unread_wrist_camera_is_neither_rendered_nor_drawn():
+@pytest.mark.parametrize("task", ["StackCube-v1", "PegInsertionSide-v1"])
+def test_unread_wrist_camera_is_neither_rendered_nor_drawn(task):
     import sapien
 
     def mesh_visibility(env):
         link = env.unwrapped_ms.agent.robot.links_map["camera_link"]
         return [part.entity.find_component_by_type(sapien.render.RenderBodyComponent).visibility for part in link._objs]
 
-    base_only = ObsBenchEnv("StackCube-v1", image_size=SIZE)
-    both = ObsBenchEnv("StackCube-v1", image_size=SIZE, cameras=("base_camera", "hand_camera"))
+    base_only = ObsBenchEnv(task, image_size=SIZE)
+    both = ObsBenchEnv(task, image_size=SIZE, cameras=("base_camera", "hand_camera"))
     try:
         for seed in (0, 1):
-            base_only.reset(seed=seed)
-            both.reset(seed=seed)
+            obs, _ = base_only.reset(seed=seed)
+            both_obs, _ = both.reset(seed=seed)
+            assert set(obs["pixels"]) == {"base_camera"} and set(both_obs["pixels"]) == {"base_camera", "hand_camera"}
             assert list(base_only.unwrapped_ms._sensors) == ["base_camera"]
             assert mesh_visibility(base_only) == [0.0]
             assert sorted(both.unwrapped_ms._sensors) == ["base_camera", "hand_camera"]
             assert mesh_visibility(both) == [1.0]
+            # the frame a reset returns is drawn as every later one (PegInsertionSide rebuilds its scene, and with
+            # it the cameras, at every reset)
+            again = base_only.schema_frame(base_only.unwrapped_ms.get_obs())
+            np.testing.assert_array_equal(obs["pixels"]["base_camera"], again["observation.images.base_camera"])
             # the same scene, state for state: only the wrist camera's drawing differs
             np.testing.assert_array_equal(
-                base_only.schema_frame(base_only.unwrapped_ms.get_obs())["observation.privileged_state"],
+                again["observation.privileged_state"],
                 both.schema_frame(both.unwrapped_ms.get_obs())["observation.privileged_state"],
             )
             obs, *_ = base_only.step(np.zeros(base_only.action_space.shape, np.float32))

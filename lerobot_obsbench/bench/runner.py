@@ -56,6 +56,8 @@ RATES_MEASURED_ON = (
     "ManiSkill's CPU simulation rendering on the GPU: its GPU simulation is not measured); docs/performance.md"
 )
 EVAL_RATE_IMAGE_SIZE = 64
+# The cores of the machine the cpu rates were measured on: more local workers than this share no more of its time.
+CPU_RATE_CORES = 2
 # RLBench steps per second: a guess, not measured (CoppeliaSim does not run here). Each step plans a path to the
 # predicted pose and executes it in CoppeliaSim, which simulates on the CPU whatever the policy's device
 RLBENCH_STEPS_PER_SECOND = {"cpu": 1.0, "cuda": 1.0}
@@ -87,10 +89,16 @@ def eval_batch_size(grid: Grid, device: str, cores: int | None = None) -> int:
 
 
 def episode_seconds(
-    episodes: int, max_steps: int, device: str, rlbench: bool = False, batch_size: int = 1, image_size: int = 128
+    episodes: float,
+    max_steps: int,
+    device: str,
+    rlbench: bool = False,
+    batch_size: int = 1,
+    image_size: int = 128,
+    used: float = 0.6,
 ) -> float:
-    """Running `episodes` simulated episodes of up to `max_steps` steps, `batch_size` in lockstep."""
-    # successful episodes end early: count ~60% of the budget
+    """Running `episodes` simulated episodes of up to `max_steps` steps, `batch_size` in lockstep, each using
+    `used` of its budget (a successful episode ends early; a failed one runs it out)."""
     if rlbench:
         rate = RLBENCH_STEPS_PER_SECOND[device_kind(device)]
     else:
@@ -98,7 +106,7 @@ def episode_seconds(
         rate = measured[max(n for n in measured if n <= batch_size)]
         if device_kind(device) == "cpu":  # the CPU renderer slows with the frame; the GPU's did not from 64² to 128²
             rate *= min(1.0, EVAL_RATE_IMAGE_SIZE / image_size)
-    return episodes * max_steps * 0.6 / rate + 10
+    return episodes * max_steps * used / rate + 10
 
 
 def eval_seconds(spec: EvalSpec, device: str, rlbench: bool = False, batch_size: int = 1, image_size: int = 128):
@@ -107,8 +115,13 @@ def eval_seconds(spec: EvalSpec, device: str, rlbench: bool = False, batch_size:
 
 def demo_seconds(grid: Grid, run: RunSpec, episodes: int, device: str) -> float:
     """Recording `episodes` scripted demonstrations of `run`'s task, one env: an expert's step costs what a
-    policy's does in evaluation (the simulator and renderer dominate); failed attempts are not counted."""
-    return episode_seconds(episodes, grid.max_steps(run), device, image_size=run.image_size)
+    policy's does in evaluation (the simulator and renderer dominate), and each success comes with the failed
+    attempts its expert's success rate implies, each running out the episode's budget."""
+    failed = episodes * (1 / task_spec(run.task).expert_success_rate - 1)
+    steps = grid.max_steps(run)
+    return episode_seconds(episodes, steps, device, image_size=run.image_size) + episode_seconds(
+        failed, steps, device, image_size=run.image_size, used=1.0
+    )
 
 
 def demo_dir(out: Path, run: RunSpec, episodes: int) -> Path:
@@ -232,12 +245,13 @@ def print_plan(grid: Grid, work: Work, out: Path, device: str, echo=print, worke
     )
     echo(
         f"  rough cost with one worker: {totals['cpu'] / 3600:.1f} h on a 2-core CPU, {totals['cuda'] / 3600:.1f} h "
-        f"on one H200 GPU (planning on {device}; demonstrations to record included, their failed attempts not)"
+        f"on one H200 GPU (planning on {device}; demonstrations to record included)"
     )
-    if workers > 1:
+    if workers > 1 and device_kind(device) == "cpu":
+        shared = min(workers, CPU_RATE_CORES)
         echo(
-            f"  with {workers} local workers: ~{totals['cpu'] / 3600 / workers:.1f} h of wall time on a 2-core CPU "
-            "(the one-worker cost shared evenly; measured against real grids in docs/performance.md)"
+            f"  with {workers} local workers: ~{totals['cpu'] / 3600 / shared:.1f} h of wall time on a 2-core CPU "
+            f"(the one-worker cost shared evenly by {shared}; measured against real grids in docs/performance.md)"
         )
     echo(f"  {RATES_MEASURED_ON}")
     if len(set(grid.seeds)) < 2:

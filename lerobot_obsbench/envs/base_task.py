@@ -72,6 +72,9 @@ class Task:
     sub_success: ClassVar[tuple[str, ...]] = ()
     # Scripted expert class (`envs.experts.WaypointExpert` subclass); None: demos must come from `import-h5`.
     expert: ClassVar[type | None] = None
+    # Share of the expert's attempts that succeed (the docstring says where it was measured): a grid's dry run
+    # prices the failed attempts that recording its demonstrations takes by it.
+    expert_success_rate: ClassVar[float] = 1.0
     # ManiSkill asset download id when the task needs downloaded assets.
     asset_group: ClassVar[str | None] = None
     # Attributes of the ManiSkill env holding the actors whose poses (xyz + quaternion wxyz, 7 values each, in this
@@ -138,6 +141,8 @@ def register_task(cls: type[Task]) -> type[Task]:
         raise ValueError(f"task {cls.name!r}: objects {unknown} are not among its privileged_actors")
     if cls.sub_success and "grasp" in cls.sub_success and cls.grasped is None:
         raise ValueError(f"task {cls.name!r} reports a grasp milestone but names no grasped object")
+    if not 0 < cls.expert_success_rate <= 1:
+        raise ValueError(f"task {cls.name!r}: expert_success_rate must be in (0, 1]; got {cls.expert_success_rate}")
     TASKS[cls.name] = cls()
     return cls
 

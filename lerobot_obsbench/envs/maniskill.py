@@ -208,17 +208,15 @@ class ObsBenchEnv(gym.Env):
             sapien.render.set_ray_tracing_samples_per_pixel(int(self.perturbation.scalar))
             sapien.render.set_ray_tracing_denoiser("none")
             sensor_configs["shader_pack"] = "rt"
-        obs = self._make(control_mode, sensor_configs, episode_length or spec.max_steps)
+        self._make(control_mode, sensor_configs, episode_length or spec.max_steps)
         if self.perturbation and self.perturbation.kind.startswith("camera"):
             moved = camera_overrides(self._env.unwrapped, self.cameras, self.perturbation, spec.camera)
             for cam, config in moved.items():
                 sensor_configs[cam] = {**sensor_configs.get(cam, {}), **config}
             self._env.close()
-            obs = self._make(control_mode, sensor_configs, episode_length or spec.max_steps)
+            self._make(control_mode, sensor_configs, episode_length or spec.max_steps)
         if self.perturbation and self.perturbation.kind in ("light", "background"):
             apply_scene_perturbation(self._env.unwrapped, self.perturbation)
-        if self.cameras:
-            check_cameras(spec, self.cameras, list(obs["sensor_data"]))
         self.unwrapped_ms = self._env.unwrapped
         self.device = self.unwrapped_ms.device  # where reset_all / step_all keep their tensors
         self.action_space = gym.spaces.Box(-1.0, 1.0, self.unwrapped_ms.single_action_space.shape, np.float32)
@@ -245,7 +243,7 @@ class ObsBenchEnv(gym.Env):
         self.observation_space = gym.spaces.Dict(spaces)
         self._milestones: dict[str, bool] = {}
 
-    def _make(self, control_mode: str, sensor_configs: dict, max_steps: int) -> dict:
+    def _make(self, control_mode: str, sensor_configs: dict, max_steps: int) -> None:
         try:
             self._env = gym.make(
                 self.spec_.env_id,
@@ -258,7 +256,9 @@ class ObsBenchEnv(gym.Env):
                 sim_backend=self.sim_backend,
                 render_backend=self.render_backend,
             )
-            obs, _ = self._env.reset(seed=0)
+            self._env.reset(seed=0)
+            if self.cameras:  # before any is taken off, so the refusal lists every camera the task has
+                check_cameras(self.spec_, self.cameras, list(self._env.unwrapped._sensors))
             self._drop_unread_cameras()
         except Exception as err:
             if self.sim_backend == "physx_cuda" and not physx_gpu_library().is_file():
@@ -272,28 +272,31 @@ class ObsBenchEnv(gym.Env):
             if isinstance(err, RuntimeError) and any(w in str(err).lower() for w in ("vulkan", "vk::", "render")):
                 raise RenderingError(f"{RENDERING_HELP} (SAPIEN: {err})") from err
             raise
-        return obs
 
-    def _drop_unread_cameras(self) -> None:
-        """Take the cameras no observation reads off the scene: ManiSkill stops rendering them, and a camera mounted
-        on the robot (the wrist camera of StackCube and PegInsertionSide) is no longer drawn in the other cameras'
-        views, since its visual mesh costs more to draw on a CPU renderer than the rest of the scene (its mass and
-        collision box stay). ManiSkill rebuilds its sensors when it reconfigures the scene, so this runs after every
-        reset; the mesh stays drawn under GPU simulation, which cannot hide a body."""
+    def _drop_unread_cameras(self) -> bool:
+        """Take the cameras no observation reads off the scene: ManiSkill stops rendering them, and a camera the
+        robot carries (the wrist camera of StackCube and PegInsertionSide) is no longer drawn in the other cameras'
+        views or the videos, since its detailed mesh costs more to draw on a CPU renderer than the rest of the scene
+        (its mass and collision box stay). ManiSkill rebuilds its sensors when it rebuilds the scene (PegInsertionSide
+        at every reset), so this runs after every reset; returns whether it took any off, that is whether the
+        observation ManiSkill returned still has them. Under GPU simulation, which cannot hide a body, the mesh stays
+        drawn."""
         if not self.cameras:  # nothing renders: the env observes state only
-            return
+            return False
         import sapien
 
         ms_env = self._env.unwrapped
         sensors = ms_env._sensors  # the same dict as its scene's `sensors`, which rendering walks
-        for name in [name for name in sensors if name not in self.cameras]:
-            mount = getattr(sensors.pop(name).config, "mount", None)
-            if mount is None or ms_env.scene.gpu_sim_enabled:
+        unread = [name for name in sensors if name not in self.cameras]
+        for name in unread:
+            sensor = sensors.pop(name)
+            if name not in ms_env._agent_sensor_configs or ms_env.scene.gpu_sim_enabled:
                 continue
-            for part in mount._objs:
-                body = getattr(part, "entity", part).find_component_by_type(sapien.render.RenderBodyComponent)
+            for link in sensor.config.mount._objs:  # the robot link the camera is mounted on
+                body = link.entity.find_component_by_type(sapien.render.RenderBodyComponent)
                 if body is not None:
                     body.visibility = 0
+        return bool(unread)
 
     # ---- observation conversion --------------------------------------------------------------------------
 
@@ -344,8 +347,8 @@ class ObsBenchEnv(gym.Env):
         if seed is not None and len(seed) != self.num_envs:
             raise ValueError(f"reset_all needs one seed per env ({self.num_envs}); got {len(seed)}")
         obs, info = self._env.reset(seed=seed, options=options)
-        self._drop_unread_cameras()
-        if self.spec_.initialize(self.unwrapped_ms):
+        rebuilt = self._drop_unread_cameras()  # ManiSkill's observation drew the cameras it rebuilt
+        if self.spec_.initialize(self.unwrapped_ms) or rebuilt:
             obs = self.unwrapped_ms.get_obs()
         self._milestones = {}
         return self.to_env_observation(self.schema_frames(obs)), self._infos(info)

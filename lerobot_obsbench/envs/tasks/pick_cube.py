@@ -12,8 +12,9 @@ xy in [-0.1, 0.1]^2 and its height 0..0.3 m above the cube's.
 100000.. (mean 26.6 steps; `obsbench demos --task PickCube-v1 --episodes 20`).
 
 **OBSBench's camera and crop box:** ManiSkill's camera shows the cube as ~6 pixels of a 64² frame; the task camera
-looks at the spawn square from closer, and point clouds are cropped to the square and the air above it, where the
-goal is (tests/test_task_cameras.py checks both).
+looks at the spawn square from closer, and point clouds are cropped to the square and the air above it up to the
+highest goal (the clouds hold what of it the camera sees: a cube carried to the highest goals leaves the frame;
+tests/test_task_cameras.py checks the start of every episode).
 """
 
 from __future__ import annotations

@@ -37,5 +37,6 @@ class PlugCharger(Task):
     grasped = CHARGER
     sub_success = ("grasp",)
     expert = PlugChargerExpert
+    expert_success_rate = 0.25
     privileged_actors = (CHARGER, "receptacle")
     camera_names = ("base_camera", "hand_camera")  # ManiSkill runs it with the wrist-camera Panda

@@ -8,10 +8,10 @@
 Sub-success: `grasp` (the red cube was held at some step).
 
 **Expert:** top-down grasp of the red cube, lift 10 cm, move above the green cube, lower, release, retreat.
-19/20 over seeds 100000.. (mean 34.5 steps).
+19/20 over seeds 100000.. (mean 34.5 steps); 210 of 234 for the cpu-suite grid.
 
 **OBSBench's camera and crop box:** ManiSkill's camera (0.6 m away, 90° field of view) shows a cube as ~6 pixels of
-a 64² frame and loses it behind the hand in some episodes; the task camera looks down from the front right at
+a 64² frame and loses it behind the hand in some episodes; the task camera looks down from the +x, +y side at
 the cubes' spawn region, and point clouds are cropped to that region (tests/test_task_cameras.py checks both).
 """
 
@@ -50,7 +50,8 @@ class StackCube(Task):
     objects = {"cubeA": 0.035, "cubeB": 0.035}  # 2 cm half-size cubes
     sub_success = ("grasp",)
     expert = StackCubeExpert
-    # looking down at the table from the front right, so the hand (above x = 0) hides no cube at the start
+    expert_success_rate = 0.9
+    # looking down at the table from the +x, +y side, so the hand (above x = 0) hides no cube at the start
     camera = ((0.45, 0.25, 0.55), (0.0, 0.0, 0.0), 0.9)
     # both cubes' spawn region (x in [-0.2, 0.2], y in [-0.3, 0.3]) plus a cube's bounding radius, from 5 mm above
     # the table (dropping it) to 20 cm, above the height the expert lifts a cube to
