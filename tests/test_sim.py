@@ -793,3 +793,33 @@ def test_an_env_for_a_policy_that_reads_no_camera_renders_none_and_steps_the_sam
     finally:
         for env in envs:
             env.close()
+
+
+def test_an_often_failing_expert_screens_seeds_without_cameras():
+    """PegInsertionSide's expert fails often: each seed is tried without cameras first and rendered only where the
+    expert succeeds, which records what an unscreened recorder records, seed for seed and frame for frame."""
+    from lerobot_obsbench.datasets.sim_demos import ExpertRecorder, expert_episode
+
+    pushing = ExpertRecorder("PushCube-v1", ["base_camera"], 64)
+    assert pushing.screen is None  # its expert rarely fails
+    pushing.close()
+    recorder = ExpertRecorder("PegInsertionSide-v1", ["base_camera"], 64)
+    plain = ObsBenchEnv("PegInsertionSide-v1", image_size=64)
+    outcomes = []
+    try:
+        assert recorder.screen is not None and recorder.screen.cameras == []
+        for seed in (100000, 100001, 100002):
+            ok, frames = recorder.episode(seed)
+            expected_ok, expected = expert_episode(plain, task_spec("PegInsertionSide-v1"), seed)
+            assert ok == expected_ok
+            outcomes.append(ok)
+            if not ok:  # screened out: nothing rendered
+                assert frames == {}
+                continue
+            assert frames.keys() == expected.keys()
+            for key in frames:
+                np.testing.assert_array_equal(frames[key], expected[key], err_msg=key)
+    finally:
+        recorder.close()
+        plain.close()
+    assert True in outcomes and False in outcomes, f"seeds 100000..100002 should hold both outcomes: {outcomes}"

@@ -12,6 +12,11 @@ the first N successful seeds, as with one worker, but not always the same frames
 carries state from one episode into the next in the same env (the order of its contact pairs, measured in
 docs/simulation.md), so an episode recorded after another seed can drift by a millimetre once contacts begin.
 A given W (and the same resume points) records the same dataset every time.
+
+A task whose expert fails often (`Task.expert_success_rate` below SCREEN_BELOW: PegInsertionSide, PlugCharger)
+first tries each seed in a second env without cameras, where a step costs physics only, and renders the seed only
+if the expert succeeds there: the rendered attempt decides (rendering does not move the simulation), and a seed
+screened out is logged as a failed attempt of 0 recorded steps.
 """
 
 from __future__ import annotations
@@ -48,6 +53,9 @@ from lerobot_obsbench.schema import (
 )
 
 ATTEMPTS_LOG = "attempts.jsonl"
+# The expert success rate below which seeds are screened without cameras first: above it, screening would
+# simulate most seeds twice to save little rendering.
+SCREEN_BELOW = 0.8
 SIDECAR = "obsbench_demos.json"
 EPISODE_FILE = re.compile(r"seed_(\d+)\.npz")
 
@@ -81,12 +89,18 @@ class ExpertRecorder:
 
         self.spec = task_spec(task)
         self.env = ObsBenchEnv(task, cameras=cameras, image_size=image_size)
+        screens = bool(cameras) and self.spec.expert_success_rate < SCREEN_BELOW
+        self.screen = ObsBenchEnv(task, cameras=(), image_size=image_size) if screens else None
 
     def episode(self, seed: int) -> tuple[bool, dict[str, np.ndarray]]:
+        if self.screen is not None and not expert_episode(self.screen, self.spec, seed)[0]:
+            return False, {}
         return expert_episode(self.env, self.spec, seed)
 
     def close(self) -> None:
         self.env.close()
+        if self.screen is not None:
+            self.screen.close()
 
 
 def make_expert_recorder(task: str, cameras, image_size: int) -> ExpertRecorder:
