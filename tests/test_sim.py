@@ -71,8 +71,13 @@ def test_env_speaks_the_schema(env):
 
 def test_unprojected_depth_matches_maniskill_pointcloud(env):
     """The geometry contract: our depth + K + cam2world give ManiSkill's own point cloud to < 2 mm."""
+    from mani_skill.utils import sapien_utils
+
     obs, _ = env.reset(seed=5)
-    reference = gym.make("PickCube-v1", obs_mode="pointcloud", sensor_configs=dict(width=SIZE, height=SIZE), num_envs=1)
+    eye, target, fov = task_spec("PickCube-v1").camera  # the task's camera, in ManiSkill's own terms
+    camera = {"pose": sapien_utils.look_at(list(eye), list(target)), "fov": fov}
+    configs = dict(width=SIZE, height=SIZE, base_camera=camera)
+    reference = gym.make("PickCube-v1", obs_mode="pointcloud", sensor_configs=configs, num_envs=1)
     ref_obs, _ = reference.reset(seed=5)
     xyzw = ref_obs["pointcloud"]["xyzw"][0].numpy().reshape(SIZE, SIZE, 4)
     reference.close()
@@ -762,8 +767,8 @@ def test_stock_dataset_viewer_opens_recorded_demos(demos, tmp_path):
 @pytest.mark.parametrize("task", sorted(t for t, spec in TASKS.items() if not spec.asset_group))
 def test_each_task_renders_the_cameras_it_declares(task):
     """Grids and demos refuse a camera typo from the task's declared cameras, before any simulator starts: they
-    must be the ones the built env renders."""
-    env = ObsBenchEnv(task=task, image_size=32, cameras=["base_camera"])
+    must be the ones the built env renders (asked for all of them: an env takes the cameras nobody reads off)."""
+    env = ObsBenchEnv(task=task, image_size=32, cameras=list(task_spec(task).camera_names))
     try:
         assert sorted(env.unwrapped_ms._sensors) == sorted(task_spec(task).camera_names)
     finally:
