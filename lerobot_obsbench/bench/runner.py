@@ -128,6 +128,11 @@ def demo_dir(out: Path, run: RunSpec, episodes: int) -> Path:
     return out / "demos" / f"{run.demo_key}-{episodes}ep"
 
 
+def demos_recorded(path: Path) -> bool:
+    """Whether `path` holds a finished recording (its LeRobotDataset is assembled only once every episode is in)."""
+    return (path / "meta" / "info.json").is_file()
+
+
 @dataclass
 class Work:
     """What a grid still has to do."""
@@ -182,7 +187,7 @@ def planned_steps(run: RunSpec, out: Path) -> tuple[int, bool]:
     if run.budget_unit != "frame_epochs":
         return run.steps(), True
     path = demo_dir(out, run, run.demos)
-    if (path / "meta" / "info.json").is_file():
+    if demos_recorded(path):
         return run.steps(demo_frames(path, run.demos)), True
     return run.steps(run.demos * DEMO_FRAMES_PER_EPISODE), False
 
@@ -201,7 +206,7 @@ def print_plan(grid: Grid, work: Work, out: Path, device: str, echo=print, worke
     to_record = [
         (run, episodes)
         for run, episodes in work.demos.values()
-        if run.rlbench_task is None and not (demo_dir(out, run, episodes) / "meta" / "info.json").is_file()
+        if run.rlbench_task is None and not demos_recorded(demo_dir(out, run, episodes))
     ]
     for run, episodes in to_record:
         for kind in ("cpu", "cuda"):

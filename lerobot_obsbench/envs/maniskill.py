@@ -281,13 +281,14 @@ class ObsBenchEnv(gym.Env):
         at every reset), so this runs after every reset; returns whether it took any off, that is whether the
         observation ManiSkill returned still has them. Under GPU simulation, which cannot hide a body, the mesh stays
         drawn."""
-        if not self.cameras:  # nothing renders: the env observes state only
+        ms_env = self._env.unwrapped
+        sensors = ms_env._sensors  # the same dict as its scene's `sensors`, which rendering walks
+        # with no camera read, nothing renders (the env observes state only): its sensors are left alone
+        unread = [name for name in sensors if name not in self.cameras] if self.cameras else []
+        if not unread:  # every reset but a scene rebuild's
             return False
         import sapien
 
-        ms_env = self._env.unwrapped
-        sensors = ms_env._sensors  # the same dict as its scene's `sensors`, which rendering walks
-        unread = [name for name in sensors if name not in self.cameras]
         for name in unread:
             sensor = sensors.pop(name)
             if name not in ms_env._agent_sensor_configs or ms_env.scene.gpu_sim_enabled:
@@ -296,7 +297,7 @@ class ObsBenchEnv(gym.Env):
                 body = link.entity.find_component_by_type(sapien.render.RenderBodyComponent)
                 if body is not None:
                     body.visibility = 0
-        return bool(unread)
+        return True
 
     # ---- observation conversion --------------------------------------------------------------------------
 
