@@ -1,0 +1,165 @@
+"""Comparisons between columns, to check that a method uses what it sees: its interval against the blind
+control's, its rate between the blind and oracle controls, its episodes seed by seed against the nominal
+evaluation, and rliable's aggregates over training seeds with its probability of improvement over the blind
+control (or a chosen reference column)."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass
+from functools import cached_property
+
+from lerobot_obsbench.bench import aggregates
+from lerobot_obsbench.bench.report.runs import label_configs, method_labels, most_demos
+from lerobot_obsbench.bench.report.statistics import Cell, ReportError
+from lerobot_obsbench.schema import BLIND_SPACES, CONTROL_SPACES, ORACLE_SPACES
+
+# Marks of a seeing method whose 95% interval lies above its blind control's.
+ABOVE_ACROSS_SEEDS = "▲"  # both rest on >= 2 training seeds: the intervals cover training variance
+ABOVE_ONE_SEED = "△"  # one side rests on one training seed: its interval covers evaluation episodes only
+
+
+def _control_labels(labels, configs: dict[str, dict], spaces: tuple[str, ...], policy: str) -> list[str]:
+    """The column labels among `labels` whose space is one of `spaces` (a control) and policy type `policy`."""
+    return [m for m in labels if configs[m]["obs_space"] in spaces and configs[m]["policy"] == policy]
+
+
+def _controls(row: dict[str, Cell], configs: dict[str, dict], spaces: tuple[str, ...], policy: str) -> list[Cell]:
+    """The cells of one task's row whose space is one of `spaces` (a control) and whose policy type is `policy`."""
+    return [row[m] for m in _control_labels(row, configs, spaces, policy)]
+
+
+def beats_blind(records: list[dict], cells: dict[str, dict[str, Cell]]) -> dict[str, dict[str, dict]]:
+    """{task: {label: {"above": interval above the blind control's, "mark": ▲ / △ / "", "seeds": training seeds
+    of the method, "blind_seeds": of the control}}} for methods that have a blind control of their policy type on
+    that task (the one with the highest upper bound when there are several). ▲ needs at least two training
+    seeds on both sides; a comparison resting on one seed is at most △."""
+    configs = label_configs(records)
+    out: dict[str, dict[str, dict]] = {}
+    for task, row in cells.items():
+        for method, cell in row.items():
+            if configs[method]["obs_space"] in BLIND_SPACES:
+                continue
+            controls = _controls(row, configs, BLIND_SPACES, configs[method]["policy"])
+            if not controls:
+                continue
+            blind = max(controls, key=lambda c: c.ci95[1])
+            above = cell.ci95[0] > blind.ci95[1]
+            across_seeds = min(cell.seeds, blind.seeds) >= 2
+            mark = (ABOVE_ACROSS_SEEDS if across_seeds else ABOVE_ONE_SEED) if above else ""
+            out.setdefault(task, {})[method] = {
+                "above": above,
+                "mark": mark,
+                "seeds": cell.seeds,
+                "blind_seeds": blind.seeds,
+            }
+    return out
+
+
+def control_brackets(records: list[dict], cells: dict[str, dict[str, Cell]]) -> dict[str, dict[str, dict]]:
+    """{task: {label: {"blind", "oracle", "rate", "gain_fraction"}}} for seeing methods with both controls of their
+    policy type on the task (the best-scoring control of each kind): gain_fraction = (rate - blind) / (oracle -
+    blind), None when the oracle does not beat blind (nothing to recover)."""
+    configs = label_configs(records)
+    out: dict[str, dict[str, dict]] = {}
+    for task, row in cells.items():
+        for method, cell in row.items():
+            policy = configs[method]["policy"]
+            if configs[method]["obs_space"] in CONTROL_SPACES:
+                continue
+            best = {}
+            for kind, spaces in (("blind", BLIND_SPACES), ("oracle", ORACLE_SPACES)):
+                controls = _controls(row, configs, spaces, policy)
+                best[kind] = max(c.rate for c in controls) if controls else None
+            if best["blind"] is None or best["oracle"] is None:
+                continue
+            gain = best["oracle"] - best["blind"]
+            fraction = (cell.rate - best["blind"]) / gain if gain > 0 else None
+            out.setdefault(task, {})[method] = {**best, "rate": cell.rate, "gain_fraction": fraction}
+    return out
+
+
+@dataclass
+class Agreement:
+    """Seed-by-seed comparison of an evaluation-only change with the nominal evaluation of the same checkpoints."""
+
+    changed: Cell  # successes under the change
+    nominal: Cell
+    same_outcome: int  # episodes whose success / failure is the nominal one
+    identical: int  # episodes with the nominal outcome and length
+
+
+def agreements(records: list[dict]) -> dict[tuple[str, str, str], Agreement]:
+    """{(task, label, perturbation): Agreement}, pooling the runs of each label (largest demo count)."""
+    labels = method_labels(records)
+    most = most_demos(records)
+    # per key: each run's (successes, episodes) changed and nominal, then the episode counts pooled
+    changed_runs, nominal_runs = defaultdict(list), defaultdict(list)
+    same, identical = defaultdict(int), defaultdict(int)
+    for r in records:
+        nominal = r["evaluations"].get("none", {}).get("per_seed")
+        if r["config"]["demos"] != most[r["task"]] or nominal is None:
+            continue
+        for name, evaluation in r["evaluations"].items():
+            changed = evaluation.get("per_seed")
+            if name == "none" or changed is None or changed["seeds"] != nominal["seeds"]:
+                continue
+            pairs = list(zip(nominal["success"], changed["success"], nominal["length"], changed["length"], strict=True))
+            key = (r["task"], labels[r["run_id"]], name)
+            changed_runs[key].append((changed["success"].count("1"), len(pairs)))
+            nominal_runs[key].append((nominal["success"].count("1"), len(pairs)))
+            same[key] += sum(a == b for a, b, _, _ in pairs)
+            identical[key] += sum(a == b and la == lb for a, b, la, lb in pairs)
+    return {
+        key: Agreement(Cell(tuple(changed_runs[key])), Cell(tuple(nominal_runs[key])), same[key], identical[key])
+        for key in sorted(changed_runs)
+    }
+
+
+Estimate = tuple[float, float, float]  # point, low, high
+
+
+@dataclass(frozen=True)
+class SeedAggregates:
+    """rliable's Mean S.R. and IQM of every column with scores on every task, and its probability of
+    improvement over its blind control and over the reference column: {label: (other label, estimate)}, the
+    estimate None where both rest on one training seed."""
+
+    estimates: dict[str, dict]
+    over_blind: dict[str, tuple[str, Estimate | None]]
+    over_reference: dict[str, tuple[str, Estimate | None]]
+    left_out: dict[str, str]  # label -> why it has no aggregates
+
+    @cached_property
+    def pairs(self) -> dict[tuple[str, str], Estimate]:
+        """{(label, other label): estimate} of every probability of improvement that is an estimate."""
+        return {
+            (x, y): e
+            for found in (self.over_blind, self.over_reference)
+            for x, (y, e) in found.items()
+            if e is not None
+        }
+
+
+def seed_aggregates(
+    records: list[dict], cells: dict[str, dict[str, Cell]], reference: str | None = None
+) -> SeedAggregates:
+    """Mean S.R. and IQM over training seeds and tasks with stratified bootstrap intervals, and each method's
+    probability of improvement over its blind control (same policy type) and over `reference` (a column label)."""
+    scores, left_out = aggregates.seed_scores(cells)
+    if reference is not None and reference not in scores:
+        known = ", ".join(sorted(scores)) or "none"
+        why = f" ({left_out[reference]})" if reference in left_out else ""
+        raise ReportError(f"--reference {reference!r} is not a column with scores on every task{why}; columns: {known}")
+    estimates = aggregates.aggregate_estimates(scores)
+    configs = label_configs(records)
+    over_blind, over_reference = {}, {}
+    for label in sorted(scores):
+        if configs[label]["obs_space"] not in BLIND_SPACES:
+            blinds = _control_labels(scores, configs, BLIND_SPACES, configs[label]["policy"])
+            if blinds:
+                blind = max(blinds, key=lambda m: estimates[m]["mean_sr"][0])
+                over_blind[label] = (blind, aggregates.improvement_estimate(scores[label], scores[blind]))
+        if reference is not None and label != reference:
+            over_reference[label] = (reference, aggregates.improvement_estimate(scores[label], scores[reference]))
+    return SeedAggregates(estimates, over_blind, over_reference, left_out)

@@ -1,0 +1,143 @@
+"""The report's figures as PNG bytes: one matplotlib set-up (`pyplot`, `figure_png`), the bar and curve charts,
+and one builder per figure, each taking the ReportData and returning {file name: (caption, PNG)}, empty when it
+has nothing to draw."""
+
+from __future__ import annotations
+
+import io
+import math
+
+from lerobot_obsbench.bench import aggregates
+from lerobot_obsbench.bench.report.data import ReportData
+from lerobot_obsbench.bench.report.runs import method_labels, perturbation_series
+from lerobot_obsbench.bench.report.statistics import Cell
+
+Figure = tuple[str, bytes]  # caption, PNG
+
+
+def pyplot():
+    """matplotlib.pyplot on the Agg backend: the report draws into files, never onto a display."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def figure_png(fig) -> bytes:
+    """The figure as PNG bytes; the figure is closed."""
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110, bbox_inches="tight")
+    pyplot().close(fig)
+    return buffer.getvalue()
+
+
+def bar_chart(cells: dict[str, dict[str, Cell]]) -> bytes:
+    """One panel per task: each method's success rate with its 95% interval."""
+    plt = pyplot()
+    tasks = list(cells)
+    cols = min(3, len(tasks))
+    fig, axes = plt.subplots(
+        math.ceil(len(tasks) / cols), cols, figsize=(4.5 * cols, 3.2 * math.ceil(len(tasks) / cols)), squeeze=False
+    )
+    for ax, task in zip(axes.flat, tasks, strict=False):
+        methods = sorted(cells[task])
+        values = [cells[task][m].rate for m in methods]
+        errors = [
+            [v - cells[task][m].ci95[0] for m, v in zip(methods, values, strict=True)],
+            [cells[task][m].ci95[1] - v for m, v in zip(methods, values, strict=True)],
+        ]
+        ax.bar(range(len(methods)), values, yerr=errors, capsize=3, color=[f"C{i}" for i in range(len(methods))])
+        ax.set_xticks(range(len(methods)), methods, rotation=30, ha="right", fontsize=7)
+        ax.set_ylim(0, 1)
+        ax.set_title(task, fontsize=9)
+        ax.set_ylabel("success rate (95% CI)", fontsize=8)
+    for ax in list(axes.flat)[len(tasks) :]:
+        ax.axis("off")
+    fig.tight_layout()
+    return figure_png(fig)
+
+
+def curve_chart(
+    series: dict[str, list[tuple[float, float]]],
+    xlabel: str,
+    title: str,
+    log_x: bool = False,
+    log_y: bool = False,
+    ylabel: str = "mean success rate over tasks",
+) -> bytes:
+    """One line per method through its (x, y) points."""
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(5.5, 3.5))
+    for method, points in sorted(series.items()):
+        xs, ys = zip(*sorted(points), strict=True)
+        ax.plot(xs, ys, marker="o" if len(xs) < 20 else None, label=method)
+    if log_x:
+        ax.set_xscale("log")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    if log_y:
+        ax.set_yscale("log")
+    else:
+        ax.set_ylim(0, 1)
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return figure_png(fig)
+
+
+def aggregate_figures(data: ReportData) -> dict[str, Figure]:
+    """rliable's interval plot of Mean S.R. and IQM, and its probability-of-improvement plot."""
+    found = data.aggregates
+    figures = {}
+    if found.estimates:
+        figures["aggregates.png"] = (
+            "Mean S.R. and IQM over training seeds and tasks",
+            figure_png(aggregates.interval_chart(found.estimates)),
+        )
+    if found.pairs:
+        figures["probability_of_improvement.png"] = (
+            "Probability of improvement (training seeds)",
+            figure_png(aggregates.improvement_chart(found.pairs)),
+        )
+    return figures
+
+
+def success_figure(data: ReportData) -> dict[str, Figure]:
+    return {"success_by_task.png": ("Success rate per task", bar_chart(data.cells))}
+
+
+def loss_figure(data: ReportData) -> dict[str, Figure]:
+    """Training loss against step, one line per run."""
+    labels = method_labels(data.records)
+    series = {
+        f"{labels[r['run_id']]} seed {r['config']['seed']} ({r['task']})": [
+            tuple(p) for p in r["diagnostics"]["loss_curve"]
+        ]
+        for r in data.records
+        if (r.get("diagnostics") or {}).get("loss_curve")
+    }
+    if not series:
+        return {}
+    chart = curve_chart(series, "optimizer step", "Training loss", log_y=True, ylabel="loss")
+    return {"training_loss.png": ("Training loss per run", chart)}
+
+
+def generalization_figures(data: ReportData) -> dict[str, Figure]:
+    """Mean success rate over tasks against the value of each evaluation-only change."""
+    return {
+        f"generalization_{kind}.png": (
+            f"Zero-shot {kind}",
+            curve_chart(series, kind, f"Zero-shot generalization: {kind}"),
+        )
+        for kind, series in perturbation_series(data.records).items()
+    }
+
+
+def sample_efficiency_figure(data: ReportData) -> dict[str, Figure]:
+    """Mean success rate over tasks against the number of demonstrations."""
+    if not data.demo_counts:
+        return {}
+    chart = curve_chart(data.demo_series, "demonstrations", "Sample efficiency", log_x=True)
+    return {"sample_efficiency.png": ("Sample efficiency", chart)}

@@ -1,0 +1,140 @@
+"""From the results store's records to the report's columns: one view per trained run (the checkpoint shown),
+each run's column label, the per-task Cells of a perturbation and demonstration count, and the curves over
+perturbation values and demonstration counts."""
+
+from __future__ import annotations
+
+import json
+from collections import defaultdict
+
+from lerobot_obsbench.bench.report.statistics import Cell, ReportError, mean_over_tasks
+from lerobot_obsbench.envs.perturbations import NOMINAL_VALUE, parse_perturbation
+
+# Run-config fields that never split a method's column: the method itself, the task (a row), the training seed
+# (what a column pools) and the demonstration count (the sample-efficiency axis). Every other field changes what
+# is trained, so where it differs between runs of one method it becomes part of the column label.
+NOT_LABEL_FIELDS = ("task", "policy", "obs_space", "encoder", "seed", "demos")
+
+CHECKPOINT_CHOICES = ("best", "last")
+
+
+def run_views(records: list[dict], checkpoint: str = "best") -> list[dict]:
+    """One view per trained run from the results store's train and eval records: its config plus
+    `evaluations` {perturbation: eval record} of its test evaluations of `checkpoint` — "best" (the
+    best-on-validation checkpoint, where the run has one; else its last) or "last". Each view notes which
+    checkpoint it shows under "shown"."""
+    if checkpoint not in CHECKPOINT_CHOICES:
+        raise ReportError(f"checkpoint must be one of {CHECKPOINT_CHOICES}; got {checkpoint!r}")
+    tests = defaultdict(dict)  # run_id -> checkpoint -> perturbation -> record
+    for r in records:
+        if r["kind"] == "eval" and r["split"] == "test":
+            tests[r["run_id"]].setdefault(r["checkpoint"], {})[r["perturbation"]] = r
+    views = []
+    for r in records:
+        if r["kind"] != "train" or r["run_id"] not in tests:
+            continue
+        shown = checkpoint if checkpoint in tests[r["run_id"]] else "last"
+        if shown not in tests[r["run_id"]]:
+            continue
+        views.append(
+            {
+                "run_id": r["run_id"],
+                "config": r["config"],
+                "method": r["method"],
+                "task": r["task"],
+                "shown": shown,
+                "evaluations": tests[r["run_id"]][shown],
+                "diagnostics": r.get("diagnostics", {}),
+            }
+        )
+    return views
+
+
+def method_labels(records: list[dict]) -> dict[str, str]:
+    """run_id -> column label: policy/space/encoder, plus every run-config field (but NOT_LABEL_FIELDS) that
+    varies within that method."""
+    by_method = defaultdict(list)
+    for r in records:
+        by_method[r["method"]].append(r)
+    labels = {}
+    for method, group in by_method.items():
+        fields = dict.fromkeys(f for g in group for f in g["config"] if f not in NOT_LABEL_FIELDS)
+        varying = [f for f in fields if len({json.dumps(g["config"].get(f), sort_keys=True) for g in group}) > 1]
+        for r in group:
+            suffix = " ".join(f"{f}={_short(r['config'].get(f))}" for f in varying)
+            labels[r["run_id"]] = f"{method} {suffix}".strip()
+    return labels
+
+
+def _short(value) -> str:
+    return f"{value:g}" if isinstance(value, float) else json.dumps(value) if isinstance(value, dict) else str(value)
+
+
+def label_configs(records: list[dict]) -> dict[str, dict]:
+    """column label -> the config of (one of) its runs."""
+    labels = method_labels(records)
+    return {labels[r["run_id"]]: r["config"] for r in records}
+
+
+def labelled_runs(records: list[dict]) -> list[tuple[str, dict]]:
+    """(column label, run view) of every run, by task, label and training seed: the order of the per-run tables."""
+    labels = method_labels(records)
+    ordered = sorted(records, key=lambda r: (r["task"], labels[r["run_id"]], r["config"]["seed"]))
+    return [(labels[r["run_id"]], r) for r in ordered]
+
+
+def most_demos(records: list[dict]) -> dict[str, int]:
+    """task -> its largest demonstration count, the one the per-task tables show."""
+    most = defaultdict(int)
+    for r in records:
+        most[r["task"]] = max(most[r["task"]], r["config"]["demos"])
+    return dict(most)
+
+
+def cells_by_task(
+    records: list[dict], perturbation: str = "none", demos: int | None = None
+) -> dict[str, dict[str, Cell]]:
+    """{task: {label: Cell}}, one Cell per column holding each training seed's episodes; `demos` None = each
+    task's largest demo count."""
+    labels = method_labels(records)
+    most = most_demos(records)
+    runs: dict[str, dict[str, list[tuple[int, int]]]] = defaultdict(lambda: defaultdict(list))
+    for r in records:
+        wanted = most[r["task"]] if demos is None else demos
+        evaluation = r["evaluations"].get(perturbation)
+        if r["config"]["demos"] != wanted or evaluation is None:
+            continue
+        runs[r["task"]][labels[r["run_id"]]].append((evaluation["successes"], evaluation["episodes"]))
+    return {t: {m: Cell(tuple(c)) for m, c in row.items()} for t, row in runs.items()}
+
+
+def perturbation_series(records: list[dict]) -> dict[str, dict[str, list[tuple[float, float]]]]:
+    """{kind: {method: [(value, mean success rate over tasks)]}}, the nominal scene included at its value."""
+    names = sorted({p for r in records for p in r["evaluations"] if p != "none"})
+    curves: dict[str, dict[str, list[tuple[float, float]]]] = defaultdict(lambda: defaultdict(list))
+    for name in names:
+        pert = parse_perturbation(name)
+        for method, value in mean_over_tasks(cells_by_task(records, name)).items():
+            curves[pert.kind][method].append((pert.scalar, value))
+    nominal_rates = mean_over_tasks(cells_by_task(records, "none")) if curves else {}
+    for kind, by_method in curves.items():
+        if NOMINAL_VALUE[kind] is not None:
+            for method, value in nominal_rates.items():
+                if method in by_method:
+                    by_method[method].append((NOMINAL_VALUE[kind], value))
+    return curves
+
+
+def demo_counts(records: list[dict]) -> list[int]:
+    """The demonstration counts of a sample-efficiency grid (none when every run trains on the same number)."""
+    counts = sorted({r["config"]["demos"] for r in records})
+    return counts if len(counts) > 1 else []
+
+
+def demo_series(records: list[dict]) -> dict[str, list[tuple[float, float]]]:
+    """{method: [(demonstration count, mean success rate over tasks)]} over `demo_counts`."""
+    series = defaultdict(list)
+    for n in demo_counts(records):
+        for method, value in mean_over_tasks(cells_by_task(records, "none", demos=n)).items():
+            series[method].append((n, value))
+    return series
