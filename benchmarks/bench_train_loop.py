@@ -25,8 +25,7 @@ import torch
 
 from benchmarks.common import ROOT, write
 from lerobot_obsbench.bench.grid import load_grid
-from lerobot_obsbench.bench.runner import demo_dir
-from lerobot_obsbench.bench.units import thread_env, train_command
+from lerobot_obsbench.bench.units import demo_dir, thread_env, train_command
 from lerobot_obsbench.dataset_reads import READER_ENV
 
 READERS = ("stock", "memory")

@@ -11,8 +11,7 @@ import yaml
 
 from lerobot_obsbench.bench.grid import EvalSpec, GridError, RunSpec, load_grid, parse_grid, preset_grids
 from lerobot_obsbench.bench.results import append_result
-from lerobot_obsbench.bench.runner import demo_dir
-from lerobot_obsbench.bench.units import train_command
+from lerobot_obsbench.bench.units import demo_dir, train_command
 from lerobot_obsbench.cli import main
 from lerobot_obsbench.envs.base_task import task_spec
 from lerobot_obsbench.envs.perturbations import orbit_eye, parse_perturbation
@@ -444,7 +443,7 @@ def test_the_evaluation_cost_model_is_the_benchmarks_measurement():
     constants follow."""
     from pathlib import Path
 
-    from lerobot_obsbench.bench.runner import EVAL_RATE_IMAGE_SIZE, EVAL_STEPS_PER_SECOND
+    from lerobot_obsbench.bench.cost import EVAL_RATE_IMAGE_SIZE, EVAL_STEPS_PER_SECOND
     from lerobot_obsbench.envs.vector import DEFAULT_BATCH_SIZE
 
     measured = json.loads((Path(__file__).resolve().parents[1] / "benchmarks/results/eval_cpu.json").read_text())
@@ -466,7 +465,7 @@ def test_the_gpu_cost_model_is_the_device_checks_measurement():
     from pathlib import Path
     from statistics import mean
 
-    from lerobot_obsbench.bench.runner import EVAL_STEPS_PER_SECOND, TRAIN_SAMPLES_PER_SECOND
+    from lerobot_obsbench.bench.cost import EVAL_STEPS_PER_SECOND, TRAIN_SAMPLES_PER_SECOND
     from lerobot_obsbench.envs.vector import DEFAULT_BATCH_SIZE
 
     results = Path(__file__).resolve().parents[1] / "benchmarks" / "results"

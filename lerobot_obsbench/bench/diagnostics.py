@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from lerobot_obsbench.schema import (
+    LOCAL_REPO_ID,
     POSE_SIZE,
     PRIVILEGED_STATE_KEY,
     PointCloud,
@@ -101,10 +102,10 @@ def held_out_diagnostics(checkpoint: str | Path, dataset: str | Path, episodes: 
 
     policy, pre, _ = load_policy(checkpoint, device)
     config = policy.config
-    meta = LeRobotDatasetMetadata("local/obsbench", root=dataset)
+    meta = LeRobotDatasetMetadata(LOCAL_REPO_ID, root=dataset)
     # every feature, not only the policy's: the diagnostics also read the object poses, K and cam2world
     delta_timestamps = every_feature(resolve_delta_timestamps(config, meta))
-    data = LeRobotDataset("local/obsbench", root=dataset, episodes=episodes, delta_timestamps=delta_timestamps)
+    data = LeRobotDataset(LOCAL_REPO_ID, root=dataset, episodes=episodes, delta_timestamps=delta_timestamps)
     errors, shares, pixels = [], [], {}
     has_objects = bool(task.objects) and PRIVILEGED_STATE_KEY in meta.features
     adapter = policy.observation_encoder().adapter  # in eval mode, as load_policy returns the policy

@@ -1,6 +1,6 @@
 """`obsbench run GRID`: the grid's driver. It plans the units of work (`units.py`: demonstrations, training,
-evaluations), hands them to an engine (`engines.py`: a local process pool or Ray), appends each finished unit's
-record to OUT/results.jsonl, and prints live progress.
+evaluations), hands them as jobs (`jobs.py`) to an engine (`engines.py`: a local process pool or Ray), appends each
+finished unit's record to OUT/results.jsonl, and prints live progress; `cost.py` prices the plan and the ETA.
 
 Resuming is by identity: a run whose train record exists is not trained again, an evaluation whose eval record
 exists is not run again; a run killed mid-training resumes from its last checkpoint (`units.train_unit`). A grid
@@ -18,65 +18,24 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from lerobot_obsbench.bench.cost import (
+    DEVICE_KINDS,
+    PlanCost,
+    device_kind,
+    eval_seconds,
+    planned_steps,
+    train_seconds,
+)
 from lerobot_obsbench.bench.engines import make_engine
 from lerobot_obsbench.bench.grid import BUDGET_UNITS, EvalSpec, Grid, GridError, RunSpec
+from lerobot_obsbench.bench.jobs import DemoJob, EvalJob, Job, TrainJob
 from lerobot_obsbench.bench.results import RESULTS_FILE, append_result, by_kind, read_results
-from lerobot_obsbench.bench.units import (
-    demo_frames,
-    demos_unit,
-    eval_unit,
-    evaluation_progress,
-    train_unit,
-    training_progress,
-)
+from lerobot_obsbench.bench.units import demo_dir, demos_recorded, evaluation_progress, training_progress
 from lerobot_obsbench.envs.base_task import TASKS, asset_help, missing_assets, task_spec
 from lerobot_obsbench.envs.vector import default_batch_size
 from lerobot_obsbench.locks import exclusive_output
 from lerobot_obsbench.rlbench.paper_tasks import grid_task_name
-
-DEMO_FRAMES_PER_EPISODE = 30  # for estimates before the demonstrations exist
-
-# Training samples per second by (device kind, preset) and space kind, for `--dry-run` estimates and a grid's ETA
-# until a run reports its own rate. Which machine measured each figure, and which figures are bounds:
-# docs/performance.md#the-cost-model; tests/test_bench_grid.py holds the measured ones to their benchmark's JSON.
-TRAIN_SAMPLES_PER_SECOND = {
-    ("cpu", "tiny"): {"image": 100.0, "point": 100.0, "none": 200.0},
-    ("cpu", "cpu"): {"image": 170.0, "point": 360.0, "none": 750.0},
-    ("cpu", "paper"): {"image": 2.5, "point": 0.5, "none": 50.0},
-    ("cuda", "tiny"): {"image": 1190.0, "point": 960.0, "none": 1450.0},
-    ("cuda", "cpu"): {"image": 1190.0, "point": 960.0, "none": 1450.0},
-    ("cuda", "paper"): {"image": 270.0, "point": 100.0, "none": 270.0},
-}
-# Evaluation env steps per second with the policy at 64², by lockstep batch size, env start-up included (an
-# unmeasured batch size counts as the largest measured one below it); the same page says where each was measured.
-EVAL_STEPS_PER_SECOND = {"cpu": {1: 23.6, 2: 24.7, 3: 26.1, 4: 24.1}, "cuda": {1: 43.3, 16: 32.6}}
-# One line of the dry run: the machines behind the rates.
-RATES_MEASURED_ON = (
-    "rates: cpu measured on a 2-core CPU machine; cuda on one H200 with a 16-core host (model steps; evaluation on "
-    "ManiSkill's CPU simulation rendering on the GPU: its GPU simulation is not measured); docs/performance.md"
-)
-EVAL_RATE_IMAGE_SIZE = 64
-# The cores of the machine the cpu rates were measured on: more local workers than this share no more of its time.
-CPU_RATE_CORES = 2
-# RLBench steps per second: a guess, not measured (CoppeliaSim does not run here). Each step plans a path to the
-# predicted pose and executes it in CoppeliaSim, which simulates on the CPU whatever the policy's device
-RLBENCH_STEPS_PER_SECOND = {"cpu": 1.0, "cuda": 1.0}
-
-
-def device_kind(device: str) -> str:
-    return "cuda" if device.startswith("cuda") else "cpu"
-
-
-def space_kind(obs_space: str) -> str:
-    from lerobot_obsbench.schema import CONTROL_SPACES, reads_points
-
-    return "point" if reads_points(obs_space) else "none" if obs_space in CONTROL_SPACES else "image"
-
-
-def train_seconds(run: RunSpec, steps: int, device: str) -> float:
-    rate = TRAIN_SAMPLES_PER_SECOND[(device_kind(device), run.preset)][space_kind(run.obs_space)]
-    # larger images cost more; smaller ones barely less (loading and the fixed per-step work dominate)
-    return steps * run.batch_size / rate * max(run.image_size / 128, 1.0) ** 2 + 20
+from lerobot_obsbench.rlbench.preflight import data_problems, simulator_problem
 
 
 def eval_batch_size(grid: Grid, device: str, cores: int | None = None) -> int:
@@ -86,51 +45,6 @@ def eval_batch_size(grid: Grid, device: str, cores: int | None = None) -> int:
         return grid.eval_batch_size
     default = default_batch_size(device)
     return min(default, cores) if cores and device_kind(device) == "cpu" else default
-
-
-def episode_seconds(
-    episodes: float,
-    max_steps: int,
-    device: str,
-    rlbench: bool = False,
-    batch_size: int = 1,
-    image_size: int = 128,
-    used: float = 0.6,
-) -> float:
-    """Running `episodes` simulated episodes of up to `max_steps` steps, `batch_size` in lockstep, each using
-    `used` of its budget (a successful episode ends early; a failed one runs it out)."""
-    if rlbench:
-        rate = RLBENCH_STEPS_PER_SECOND[device_kind(device)]
-    else:
-        measured = EVAL_STEPS_PER_SECOND[device_kind(device)]
-        rate = measured[max(n for n in measured if n <= batch_size)]
-        if device_kind(device) == "cpu":  # the CPU renderer slows with the frame; the GPU's did not from 64² to 128²
-            rate *= min(1.0, EVAL_RATE_IMAGE_SIZE / image_size)
-    return episodes * max_steps * used / rate + 10
-
-
-def eval_seconds(spec: EvalSpec, device: str, rlbench: bool = False, batch_size: int = 1, image_size: int = 128):
-    return episode_seconds(spec.episodes, spec.max_steps, device, rlbench, batch_size, image_size)
-
-
-def demo_seconds(grid: Grid, run: RunSpec, episodes: int, device: str) -> float:
-    """Recording `episodes` scripted demonstrations of `run`'s task, one env: an expert's step costs what a
-    policy's does in evaluation (the simulator and renderer dominate), and each success comes with the failed
-    attempts its expert's success rate implies, each running out the episode's budget."""
-    failed = episodes * (1 / task_spec(run.task).expert_success_rate - 1)
-    steps = grid.max_steps(run)
-    return episode_seconds(episodes, steps, device, image_size=run.image_size) + episode_seconds(
-        failed, steps, device, image_size=run.image_size, used=1.0
-    )
-
-
-def demo_dir(out: Path, run: RunSpec, episodes: int) -> Path:
-    return out / "demos" / f"{run.demo_key}-{episodes}ep"
-
-
-def demos_recorded(path: Path) -> bool:
-    """Whether `path` holds a finished recording (its LeRobotDataset is assembled only once every episode is in)."""
-    return (path / "meta" / "info.json").is_file()
 
 
 @dataclass
@@ -144,34 +58,15 @@ class Work:
     demos: dict[str, tuple[RunSpec, int]] = field(default_factory=dict)  # demo_key -> (a run, most demos)
 
 
-def load_work(grid: Grid, out: Path, echo=print) -> Work:
+def load_work(grid: Grid, out: Path) -> Work:
+    """What `grid` still has to do in `out`, from the records there (and, for a grid with `checkpoints_from`,
+    the training records it copies in)."""
     results = out / RESULTS_FILE
     records = read_results(results)
-    trained = {r["run_id"]: r for r in by_kind(records, "train")}
     runs = grid.expand()
     if grid.checkpoints_from:
-        source = Path(grid.checkpoints_from).expanduser() / RESULTS_FILE
-        source_records = read_results(source)
-        theirs = {r["run_id"]: r for r in by_kind(source_records, "train")}
-        missing = [r for r in runs if r.run_id not in trained and r.run_id not in theirs]
-        if missing:
-            raise GridError(
-                f"{grid.name} evaluates checkpoints from {source}, which has no trained run for "
-                f"{len(missing)} of its {len(runs)} runs (e.g. {missing[0].method} on {missing[0].task}, seed "
-                f"{missing[0].seed}, lr {missing[0].lr:g}): run the training grid first, and keep the two grids' "
-                "training fields identical"
-            )
-        wanted = {r.run_id for r in runs if r.run_id not in trained}
-        # the report needs the runs' configs, the best-checkpoint choice their validation scores: copy both here
-        for record in [
-            *(theirs[i] for i in sorted(wanted)),
-            *(r for r in by_kind(source_records, "eval") if r["run_id"] in wanted and r["split"] == "validation"),
-        ]:
-            record = {**record, "trained_in": str(source.parent)}
-            append_result(results, record)
-            records.append(record)
-            if record["kind"] == "train":
-                trained[record["run_id"]] = record
+        records += copy_trained_runs(grid, runs, records, results)
+    trained = {r["run_id"]: r for r in by_kind(records, "train")}
     work = Work(runs, trained, {r["eval_id"]: r for r in by_kind(records, "eval")})
     work.to_train = [r for r in runs if r.run_id not in trained]
     for run in work.to_train:
@@ -182,17 +77,38 @@ def load_work(grid: Grid, out: Path, echo=print) -> Work:
     return work
 
 
-def planned_steps(run: RunSpec, out: Path) -> tuple[int, bool]:
-    """(optimizer steps, exact): frame_epochs budgets are estimated until the demonstrations exist."""
-    if run.budget_unit != "frame_epochs":
-        return run.steps(), True
-    path = demo_dir(out, run, run.demos)
-    if demos_recorded(path):
-        return run.steps(demo_frames(path, run.demos)), True
-    return run.steps(run.demos * DEMO_FRAMES_PER_EPISODE), False
+def copy_trained_runs(grid: Grid, runs: list[RunSpec], records: list[dict], results: Path) -> list[dict]:
+    """Append to `results` the train records of `runs` not yet trained here, and their validation evaluations,
+    from the grid `grid.checkpoints_from` names; returns the copies. Raises GridError if that grid lacks a run."""
+    trained = {r["run_id"] for r in by_kind(records, "train")}
+    source = Path(grid.checkpoints_from).expanduser() / RESULTS_FILE
+    source_records = read_results(source)
+    theirs = {r["run_id"]: r for r in by_kind(source_records, "train")}
+    missing = [r for r in runs if r.run_id not in trained and r.run_id not in theirs]
+    if missing:
+        raise GridError(
+            f"{grid.name} evaluates checkpoints from {source}, which has no trained run for "
+            f"{len(missing)} of its {len(runs)} runs (e.g. {missing[0].method} on {missing[0].task}, seed "
+            f"{missing[0].seed}, lr {missing[0].lr:g}): run the training grid first, and keep the two grids' "
+            "training fields identical"
+        )
+    wanted = {r.run_id for r in runs if r.run_id not in trained}
+    # the report needs the runs' configs, the best-checkpoint choice their validation scores: copy both here
+    copies = [
+        {**record, "trained_in": str(source.parent)}
+        for record in [
+            *(theirs[i] for i in sorted(wanted)),
+            *(r for r in by_kind(source_records, "eval") if r["run_id"] in wanted and r["split"] == "validation"),
+        ]
+    ]
+    for record in copies:
+        append_result(results, record)
+    return copies
 
 
 def print_plan(grid: Grid, work: Work, out: Path, device: str, echo=print, workers: int = 1) -> None:
+    """What `grid` still has to do in `out`, run by run, and its rough cost (planning on `device` with `workers`
+    local workers)."""
     done_evals = sum(s.eval_id in work.evaluated for r in work.runs for s in grid.evaluations(r))
     all_evals = sum(len(grid.evaluations(r)) for r in work.runs)
     echo(
@@ -202,69 +118,56 @@ def print_plan(grid: Grid, work: Work, out: Path, device: str, echo=print, worke
     )
     if grid.checkpoints_from:
         echo(f"  evaluates the checkpoints trained by {grid.checkpoints_from} (trains nothing)")
-    totals = {"steps": 0, "samples": 0, "episodes": 0, "cpu": 0.0, "cuda": 0.0}
+    cost = PlanCost()
     to_record = [
         (run, episodes)
         for run, episodes in work.demos.values()
         if run.rlbench_task is None and not demos_recorded(demo_dir(out, run, episodes))
     ]
     for run, episodes in to_record:
-        for kind in ("cpu", "cuda"):
-            totals[kind] += demo_seconds(grid, run, episodes, kind)
+        cost.add_demos(grid, run, episodes)
     if to_record:
         echo(
             f"  demonstrations to record: {sum(n for _, n in to_record)} episodes of "
             + ", ".join(f"{run.task} ({n})" for run, n in to_record)
         )
+    # the cost line's machines: one worker (the whole machine) on a 2-core CPU, or one GPU
+    batch_sizes = {kind: eval_batch_size(grid, kind) for kind in DEVICE_KINDS}
     for run in work.runs:
         steps, exact = planned_steps(run, out)
-        unit = run.budget_unit
         train = run.run_id not in work.trained
         evals = [s for s in grid.evaluations(run) if s.eval_id not in work.evaluated]
-        checkpoints = grid.per_policy("checkpoints", run.policy)
-        if grid.validation_episodes:
-            evals += grid.validations(run, list(range(checkpoints)))  # one per checkpoint, for the estimate
+        if grid.validation_episodes:  # one per checkpoint, for the estimate
+            evals += grid.validations(run, list(range(grid.per_policy("checkpoints", run.policy))))
         if not train and not evals:
             continue
-        approx = "" if exact else "~"
-        echo(
-            f"  {run.run_id}  {run.task:20s} {run.method:34s} demos {run.demos:<4d} seed {run.seed:<4d} "
-            f"lr {run.lr:<7g} batch {run.batch_size:<3d} {run.budget:g} {unit} = {approx}{steps} steps, "
-            f"{approx}{steps * run.batch_size} samples{'' if train else ' (trained)'}; "
-            f"{len(evals)} evaluations, {sum(s.episodes for s in evals)} episodes"
-        )
-        if train:
-            totals["steps"] += steps
-            totals["samples"] += steps * run.batch_size
-        totals["episodes"] += sum(s.episodes for s in evals)
-        for kind in ("cpu", "cuda"):
-            totals[kind] += (train_seconds(run, steps, kind) if train else 0) + sum(
-                # the cost line's machines: one worker (the whole machine) on a 2-core CPU, or one GPU
-                eval_seconds(s, kind, run.rlbench_task is not None, eval_batch_size(grid, kind), run.image_size)
-                for s in evals
-            )
+        echo(plan_line(run, steps, exact, train, evals))
+        cost.add_run(run, steps, train, evals, batch_sizes)
     echo(
-        f"  total to do: {totals['steps']} optimizer steps, {totals['samples']} training samples, "
-        f"{totals['episodes']} evaluation episodes. Budget units: "
+        f"  total to do: {cost.steps} optimizer steps, {cost.samples} training samples, "
+        f"{cost.episodes} evaluation episodes. Budget units: "
         + "; ".join(f"{u} = {what}" for u, what in BUDGET_UNITS.items() if any(r.budget_unit == u for r in work.runs))
     )
-    echo(
-        f"  rough cost with one worker: {totals['cpu'] / 3600:.1f} h on a 2-core CPU, {totals['cuda'] / 3600:.1f} h "
-        f"on one H200 GPU (planning on {device}; demonstrations to record included)"
-    )
-    if workers > 1 and device_kind(device) == "cpu":
-        shared = min(workers, CPU_RATE_CORES)
-        echo(
-            f"  with {workers} local workers: ~{totals['cpu'] / 3600 / shared:.1f} h of wall time on a 2-core CPU "
-            f"(the one-worker cost shared evenly by {shared}; measured against real grids in docs/performance.md)"
-        )
-    echo(f"  {RATES_MEASURED_ON}")
+    for line in cost.lines(device, workers):
+        echo(line)
     if len(set(grid.seeds)) < 2:
         echo(
             f"  note: one training seed ({grid.seeds[0]}): every comparison rests on it, so its intervals cover "
             "evaluation episodes only and the report marks a method above blind with △, never ▲; list at least "
             "3 `seeds` to measure training variance"
         )
+
+
+def plan_line(run: RunSpec, steps: int, exact: bool, train: bool, evals: list[EvalSpec]) -> str:
+    """One run's line of the plan: what it trains, its budget in steps (`exact`: not estimated), whether it is
+    still to `train`, and the evaluations it still has to do."""
+    approx = "" if exact else "~"
+    return (
+        f"  {run.run_id}  {run.task:20s} {run.method:34s} demos {run.demos:<4d} seed {run.seed:<4d} "
+        f"lr {run.lr:<7g} batch {run.batch_size:<3d} {run.budget:g} {run.budget_unit} = {approx}{steps} steps, "
+        f"{approx}{steps * run.batch_size} samples{'' if train else ' (trained)'}; "
+        f"{len(evals)} evaluations, {sum(s.episodes for s in evals)} episodes"
+    )
 
 
 class Driver:
@@ -276,6 +179,7 @@ class Driver:
         work: Work,
         out: Path,
         engine,
+        *,
         device: str,
         loader_workers: int,
         threads: int | None,
@@ -285,74 +189,64 @@ class Driver:
         self.grid, self.work, self.out, self.engine = grid, work, out, engine
         self.device, self.loader_workers, self.threads, self.echo = device, loader_workers, threads, echo
         self.results = out / RESULTS_FILE
-        self.pending: dict = {}  # engine handle -> (kind, payload)
+        self.pending: dict[object, Job] = {}  # engine handle -> job
         self.copies: dict[str, list[dict]] = {}  # eval_id of a "last" eval -> "best" records waiting to copy it
         self.failures = 0
         self.started = time.time()
         self.rates: dict[str, tuple[float, int]] = {}  # run_id -> (time, step) at the previous progress line
-        self.gpus = 1 if device.startswith("cuda") else 0
         # where an RLBench grid's units find PerAct's data and the CLIP weights (not part of any run's identity)
         self.rlbench = {"data": grid.rlbench_data, "clip_weights": grid.clip_weights} if grid.rlbench_data else None
         self.eval_batch_size = eval_batch_size(grid, device, eval_cores)
 
     # ---- scheduling ----------------------------------------------------------------------------------------
 
-    def submit(self, kind: str, payload, fn, *args, cpus: float = 1, gpus: float = 0) -> None:
-        self.pending[self.engine.submit(fn, *args, cpus=cpus, gpus=gpus)] = (kind, payload)
+    def submit(self, job: Job) -> None:
+        self.pending[self.engine.submit(job)] = job
 
     def start(self) -> None:
         for key, (run, episodes) in self.work.demos.items():
             self.submit(
-                "demos",
-                key,
-                demos_unit,
-                run.task,
-                episodes,
-                str(demo_dir(self.out, run, episodes)),
-                run.image_size,
-                list(run.cameras),
-                self.rlbench,
+                DemoJob(
+                    key=key,
+                    task=run.task,
+                    episodes=episodes,
+                    path=str(demo_dir(self.out, run, episodes)),
+                    image_size=run.image_size,
+                    cameras=run.cameras,
+                    rlbench=self.rlbench,
+                )
             )
         for run in self.work.runs:
             if run.run_id in self.work.trained:
                 self.schedule_evaluations(run)
 
-    def train(self, run: RunSpec, dataset: Path) -> None:
+    def train(self, run: RunSpec, dataset: str) -> None:
         self.submit(
-            "train",
-            run,
-            train_unit,
-            run.config(),
-            str(dataset),
-            str(self.out),
-            self.device,
-            self.grid.per_policy("checkpoints", run.policy),
-            self.grid.held_out_demos,
-            self.loader_workers,
-            self.threads,
-            cpus=max(1, self.threads or 1),
-            gpus=self.gpus,
+            TrainJob(
+                run=run,
+                dataset=dataset,
+                out=str(self.out),
+                device=self.device,
+                checkpoints=self.grid.per_policy("checkpoints", run.policy),
+                held_out=self.grid.held_out_demos,
+                loader_workers=self.loader_workers,
+                threads=self.threads,
+            )
         )
 
     def evaluate(self, run: RunSpec, spec: EvalSpec, step: int) -> None:
-        train = self.work.trained[run.run_id]
-        checkpoint = train["checkpoints"][str(step)]
         self.submit(
-            "eval",
-            (run, spec),
-            eval_unit,
-            spec.config(),
-            run.config(),
-            checkpoint,
-            step,
-            str(self.out),
-            self.device,
-            self.threads,
-            self.rlbench,
-            self.eval_batch_size,
-            # each of the lockstep envs simulates and renders in a process of its own
-            cpus=max(1, self.threads or 1, self.eval_batch_size),
-            gpus=self.gpus,
+            EvalJob(
+                run=run,
+                spec=spec,
+                checkpoint=self.work.trained[run.run_id]["checkpoints"][str(step)],
+                step=step,
+                out=str(self.out),
+                device=self.device,
+                threads=self.threads,
+                batch_size=self.eval_batch_size,
+                rlbench=self.rlbench,
+            )
         )
 
     def schedule_evaluations(self, run: RunSpec) -> None:
@@ -405,57 +299,48 @@ class Driver:
 
     # ---- the loop -------------------------------------------------------------------------------------------
 
-    def finished(self, kind: str, payload, outcome) -> None:
-        if kind == "demos":
-            for run in self.work.to_train:
-                if run.demo_key == payload:
-                    _, episodes = self.work.demos[payload]
-                    self.train(run, demo_dir(self.out, run, episodes))
-            return
-        self.record(outcome)
-        if kind == "train":
-            self.echo(
-                f"trained {payload.run_id} {payload.method} on {payload.task}: {outcome['train_steps']} steps in "
-                f"{outcome['timings']['train_s']:.0f} s"
-                + (f" (resumed at step {outcome['resumed_from']})" if outcome["resumed_from"] else "")
-            )
-            self.schedule_evaluations(payload)
-            return
-        run, spec = payload
-        lo, hi = outcome["ci95"]
-        self.echo(
-            f"evaluated {run.run_id} {run.method} on {run.task} [{spec.split}, {spec.checkpoint} = step "
-            f"{outcome['checkpoint_step']}, {spec.perturbation}]: {outcome['successes']}/{outcome['episodes']} = "
-            f"{outcome['success_rate']:.0%} (95% CI {lo:.0%}-{hi:.0%})"
-        )
-        if spec.split == "validation" and self.best_step(run) is not None:
-            self.schedule_tests(run)
-        if spec.eval_id in self.copies:
-            self.copy_records(spec.eval_id)
+    def finished(self, job: Job, outcome) -> None:
+        match job:
+            case DemoJob():
+                for run in self.work.to_train:
+                    if run.demo_key == job.key:
+                        self.train(run, job.path)
+            case TrainJob(run=run):
+                self.record(outcome)
+                self.echo(
+                    f"trained {run.run_id} {run.method} on {run.task}: {outcome['train_steps']} steps in "
+                    f"{outcome['timings']['train_s']:.0f} s"
+                    + (f" (resumed at step {outcome['resumed_from']})" if outcome["resumed_from"] else "")
+                )
+                self.schedule_evaluations(run)
+            case EvalJob(run=run, spec=spec):
+                self.record(outcome)
+                lo, hi = outcome["ci95"]
+                self.echo(
+                    f"evaluated {run.run_id} {run.method} on {run.task} [{spec.split}, {spec.checkpoint} = step "
+                    f"{outcome['checkpoint_step']}, {spec.perturbation}]: {outcome['successes']}/"
+                    f"{outcome['episodes']} = {outcome['success_rate']:.0%} (95% CI {lo:.0%}-{hi:.0%})"
+                )
+                if spec.split == "validation" and self.best_step(run) is not None:
+                    self.schedule_tests(run)
+                if spec.eval_id in self.copies:
+                    self.copy_records(spec.eval_id)
 
-    def failed(self, kind: str, payload, err: Exception) -> None:
+    def failed(self, job: Job, err: Exception) -> None:
         self.failures += 1
-        what = {
-            "demos": lambda: f"demonstrations {payload}",
-            "train": lambda: f"training {payload.run_id} {payload.method} on {payload.task}",
-            "eval": lambda: (
-                f"evaluation {payload[1].eval_id} of "
-                f"{payload[0].run_id} ({payload[1].split}, {payload[1].checkpoint}, {payload[1].perturbation})"
-            ),
-        }[kind]()
-        self.echo(f"FAILED {what}: {type(err).__name__}: {err}")
+        self.echo(f"FAILED {job.describe()}: {type(err).__name__}: {err}")
 
     def loop(self, every: float) -> None:
         last_progress = time.time()
         while self.pending:
             for handle in self.engine.wait(list(self.pending), timeout=min(every, 5.0)):
-                kind, payload = self.pending.pop(handle)
+                job = self.pending.pop(handle)
                 try:
                     outcome = self.engine.result(handle)
                 except Exception as err:
-                    self.failed(kind, payload, err)
+                    self.failed(job, err)
                     continue
-                self.finished(kind, payload, outcome)
+                self.finished(job, outcome)
             if time.time() - last_progress >= every and self.pending:
                 self.progress()
                 last_progress = time.time()
@@ -464,37 +349,17 @@ class Driver:
 
     def progress(self) -> None:
         lines, remaining = [], 0.0
-        for kind, payload in self.pending.values():
-            if kind == "train":
-                state = training_progress(self.out, payload.run_id)
-                steps, _ = planned_steps(payload, self.out)
-                if state is None or state["started"] < self.started:
-                    remaining += train_seconds(payload, steps, self.device)
+        for job in self.pending.values():
+            match job:
+                case TrainJob():
+                    left, line = self.training_left(job)
+                case EvalJob():
+                    left, line = self.evaluation_left(job)
+                case _:  # demonstrations: not counted
                     continue
-                now, (then, before) = time.time(), self.rates.get(payload.run_id, (self.started, state["step"]))
-                rate = (state["step"] - before) / max(now - then, 1e-6) if state["step"] > before else None
-                self.rates[payload.run_id] = (now, state["step"])
-                left = (state["steps"] - state["step"]) / rate if rate else train_seconds(payload, steps, self.device)
-                remaining += left
-                loss = f" loss {state['loss']:.4f}" if state["loss"] is not None else ""
-                speed = f", {rate:.2f} steps/s, ETA {left / 60:.1f} min" if rate else ""
-                lines.append(
-                    f"  training {payload.run_id} {payload.method} on {payload.task}: step "
-                    f"{state['step']}/{state['steps']}{loss}{speed}"
-                )
-            elif kind == "eval":
-                run, spec = payload
-                state = evaluation_progress(self.out, run.run_id, spec.eval_id)
-                rlbench = run.rlbench_task is not None
-                remaining += eval_seconds(spec, self.device, rlbench, self.eval_batch_size, run.image_size) * (
-                    1 - (state or {"done": 0})["done"] / spec.episodes
-                )
-                if state:
-                    lines.append(
-                        f"  evaluating {run.run_id} {run.method} [{spec.split}, {spec.checkpoint}, "
-                        f"{spec.perturbation}]: episode {state['done']}/{state['episodes']}, "
-                        f"{state['successes']} successes"
-                    )
+            remaining += left
+            if line:
+                lines.append(line)
         workers = getattr(self.engine, "workers", 1)
         elapsed = (time.time() - self.started) / 60
         self.echo(
@@ -504,43 +369,53 @@ class Driver:
         for line in lines:
             self.echo(line)
 
-
-def rlbench_problems(grid: Grid) -> tuple[list[str], str | None]:
-    """(what an RLBench grid's data lacks: task folders, CLIP weights; what the simulator stack lacks, or None)."""
-    from lerobot_obsbench.rlbench.evaluate import RLBenchUnavailable, require_rlbench
-    from lerobot_obsbench.rlbench.format import RLBenchFormatError, find_episodes
-
-    data = Path(grid.rlbench_data).expanduser()
-    # the episodes each split must hold, and the grid field that asks for them
-    needed = {"test": (grid.eval_episodes, "eval_episodes"), "val": (grid.validation_episodes, "validation_episodes")}
-    if not grid.checkpoints_from:
-        needed["train"] = (max(grid.demos), "demos")
-    folders = [(data / split / grid_task_name(t), *needed[split]) for t in grid.tasks for split in needed]
-    missing = [str(folder) for folder, count, _ in folders if count and not folder.is_dir()]
-    problems = []
-    for folder, count, asked_by in folders:
-        if count and folder.is_dir():
-            try:
-                found = len(find_episodes(folder))
-            except RLBenchFormatError:
-                found = 0
-            if found < count:
-                problems.append(f"{folder} holds {found} episodes; the grid's {asked_by} needs {count}")
-    if missing:
-        problems.append(
-            f"rlbench_data lacks {len(missing)} task folder(s): {', '.join(missing[:3])}"
-            + (" ..." if len(missing) > 3 else "")
-            + " (PerAct's pre-generated data: https://github.com/peract/peract, 'Pre-generated datasets'; "
-            "one folder per split, train / val / test, holding one folder per task)"
+    def training_left(self, job: TrainJob) -> tuple[float, str | None]:
+        """(seconds left, progress line or None before it starts) of a queued or running training: from the
+        run's own rate once it has reported two steps, else from the cost model."""
+        run = job.run
+        state = training_progress(self.out, run.run_id)
+        steps, _ = planned_steps(run, self.out)
+        if state is None or state["started"] < self.started:
+            return train_seconds(run, steps, self.device), None
+        now, (then, before) = time.time(), self.rates.get(run.run_id, (self.started, state["step"]))
+        rate = (state["step"] - before) / max(now - then, 1e-6) if state["step"] > before else None
+        self.rates[run.run_id] = (now, state["step"])
+        left = (state["steps"] - state["step"]) / rate if rate else train_seconds(run, steps, self.device)
+        loss = f" loss {state['loss']:.4f}" if state["loss"] is not None else ""
+        speed = f", {rate:.2f} steps/s, ETA {left / 60:.1f} min" if rate else ""
+        return left, (
+            f"  training {run.run_id} {run.method} on {run.task}: step {state['step']}/{state['steps']}{loss}{speed}"
         )
-    if grid.clip_weights and not Path(grid.clip_weights).expanduser().is_file():
-        problems.append(f"clip_weights {grid.clip_weights} is not a file (a local CLIP ViT-B/16 checkpoint)")
-    try:
-        require_rlbench()
-        simulator = None
-    except RLBenchUnavailable as err:
-        simulator = str(err)
-    return problems, simulator
+
+    def evaluation_left(self, job: EvalJob) -> tuple[float, str | None]:
+        """(seconds left, progress line or None before it starts) of a queued or running evaluation."""
+        run, spec = job.run, job.spec
+        state = evaluation_progress(self.out, run.run_id, spec.eval_id)
+        rlbench = run.rlbench_task is not None
+        left = eval_seconds(spec, self.device, rlbench, self.eval_batch_size, run.image_size) * (
+            1 - (state or {"done": 0})["done"] / spec.episodes
+        )
+        if not state:
+            return left, None
+        return left, (
+            f"  evaluating {run.run_id} {run.method} [{spec.split}, {spec.checkpoint}, {spec.perturbation}]: "
+            f"episode {state['done']}/{state['episodes']}, {state['successes']} successes"
+        )
+
+
+def rlbench_problems(grid: Grid) -> list[str]:
+    """What an RLBench grid lacks on this machine: its tasks' data folders and their episodes, the CLIP weights, and
+    last the simulator stack."""
+    # the episodes each split must hold, and the grid field that asks for them
+    needed = {
+        "test": (grid.eval_episodes, "the grid's eval_episodes"),
+        "val": (grid.validation_episodes, "the grid's validation_episodes"),
+    }
+    if not grid.checkpoints_from:
+        needed["train"] = (max(grid.demos), "the grid's demos")
+    problems = data_problems(grid.rlbench_data, [grid_task_name(t) for t in grid.tasks], needed, grid.clip_weights)
+    simulator = simulator_problem()
+    return problems + ([simulator] if simulator else [])
 
 
 def check_tasks(grid: Grid, dry_run: bool = False, echo=print) -> None:
@@ -548,8 +423,7 @@ def check_tasks(grid: Grid, dry_run: bool = False, echo=print) -> None:
     cannot simulate here (its ManiSkill assets missing; for RLBench: its data, CLIP weights or the simulator),
     naming every problem and its fix. A dry run only notes what RLBench lacks here (a plan needs none of it)."""
     if grid.rlbench_data:
-        problems, simulator = rlbench_problems(grid)
-        problems += [simulator] if simulator else []
+        problems = rlbench_problems(grid)
         if problems and dry_run:
             echo(f"note: this machine cannot run {grid.name} as it is: " + ". Also: ".join(problems))
         elif problems:
@@ -592,7 +466,7 @@ def run_grid(
     out = Path(out)
     check_tasks(grid, dry_run, echo)
     if dry_run:
-        print_plan(grid, load_work(grid, out, echo), out, device, echo, workers)
+        print_plan(grid, load_work(grid, out), out, device, echo=echo, workers=workers)
         return 0
     # lockstep envs may use the cores a unit has to itself: the machine's with one local worker (unless --threads
     # says fewer), its share with several, one CPU under Ray (what a unit asks for there)
@@ -601,18 +475,27 @@ def run_grid(
         threads = max(1, (os.cpu_count() or 1) // max(workers, 1))
     eval_cores = None if whole_machine else (threads or 1)
     with exclusive_output(out, f"obsbench run {grid.name}"):  # a second runner on `out` is refused
-        work = load_work(grid, out, echo)
-        print_plan(grid, work, out, device, echo, workers)
-        units = make_engine(engine, workers, address)
-        runner = Driver(grid, work, out, units, device, loader_workers, threads, echo, eval_cores)
+        work = load_work(grid, out)
+        print_plan(grid, work, out, device, echo=echo, workers=workers)
+        driver = Driver(
+            grid,
+            work,
+            out,
+            make_engine(engine, workers, address),
+            device=device,
+            loader_workers=loader_workers,
+            threads=threads,
+            echo=echo,
+            eval_cores=eval_cores,
+        )
         try:
-            runner.start()
-            if not runner.pending:
+            driver.start()
+            if not driver.pending:
                 echo("nothing to do: every run is trained and every evaluation recorded")
-            runner.loop(progress_every)
+            driver.loop(progress_every)
         except KeyboardInterrupt:
-            runner.engine.shutdown(abort=True)
+            driver.engine.shutdown(abort=True)
             raise
         finally:
-            runner.engine.shutdown()
-    return runner.failures
+            driver.engine.shutdown()
+    return driver.failures

@@ -1,8 +1,10 @@
 """The units of work of a grid — recording demonstrations, training a run, evaluating a checkpoint — as top-level
 functions of picklable arguments that return results records, so any engine (a local process pool, Ray on a
-cluster) can run them. Only the grid's driver writes the results file.
+cluster) can run them (the driver hands them over as `jobs.py`'s jobs). Only the grid's driver writes the results
+file.
 
-Layout of a grid's output directory (shared by every worker; on a cluster it must be a shared filesystem):
+Layout of a grid's output directory (`run_dir`, `demo_dir`; shared by every worker; on a cluster it must be a
+shared filesystem):
 
     OUT/results.jsonl                       train and eval records (see `results.py`)
     OUT/demos/<task>-<px>-<cams>-<ctrl>-<N>ep/  scripted demonstrations shared by every run of that task
@@ -35,6 +37,7 @@ from pathlib import Path
 from lerobot_obsbench.bench.grid import EvalSpec, RunSpec
 from lerobot_obsbench.errors import ObsBenchError
 from lerobot_obsbench.rlbench.paper_tasks import grid_task_name
+from lerobot_obsbench.schema import LOCAL_REPO_ID
 
 PACKAGES = ("lerobot", "torch", "mani-skill", "sapien", "lerobot_policy_obsbench")
 CHECKPOINTS = "checkpoints"
@@ -77,6 +80,24 @@ def thread_env(threads: int | None) -> dict[str, str]:
     return {name: str(threads) for name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
 
 
+# ---- the output directory's layout -------------------------------------------------------------------------
+
+
+def run_dir(out_dir: str | Path, run_id: str) -> Path:
+    """OUT/runs/<run_id>: what one run writes (its training, logs and evaluations)."""
+    return Path(out_dir) / "runs" / run_id
+
+
+def demo_dir(out_dir: str | Path, run: RunSpec, episodes: int) -> Path:
+    """OUT/demos/<demo_key>-<N>ep: the first `episodes` demonstrations of the dataset `run` trains on."""
+    return Path(out_dir) / "demos" / f"{run.demo_key}-{episodes}ep"
+
+
+def demos_recorded(path: Path) -> bool:
+    """Whether `path` holds a finished recording (its LeRobotDataset is assembled only once every episode is in)."""
+    return (path / "meta" / "info.json").is_file()
+
+
 # ---- demonstrations ----------------------------------------------------------------------------------------
 
 
@@ -107,13 +128,13 @@ def demos_unit(
 def demo_count(dataset: Path) -> int:
     from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 
-    return int(LeRobotDatasetMetadata("local/obsbench", root=dataset).total_episodes)
+    return int(LeRobotDatasetMetadata(LOCAL_REPO_ID, root=dataset).total_episodes)
 
 
 def demo_frames(dataset: Path, episodes: int) -> int:
     from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 
-    return int(sum(LeRobotDatasetMetadata("local/obsbench", root=dataset).episodes["length"][:episodes]))
+    return int(sum(LeRobotDatasetMetadata(LOCAL_REPO_ID, root=dataset).episodes["length"][:episodes]))
 
 
 # ---- training ----------------------------------------------------------------------------------------------
@@ -133,7 +154,7 @@ def train_command(
         f"--policy.type={run.policy}",
         *run.policy_args(),
         f"--policy.device={device}",
-        "--dataset.repo_id=local/obsbench",
+        f"--dataset.repo_id={LOCAL_REPO_ID}",
         f"--dataset.root={dataset}",
         f"--dataset.episodes=[{','.join(str(i) for i in range(run.demos))}]",
         f"--seed={run.seed}",
@@ -193,7 +214,7 @@ def train_unit(
     """Train one run with stock lerobot-train (resuming from its last checkpoint after a kill), then compute its
     diagnostics on the dataset's last `held_out` demonstrations; returns its train record."""
     run = RunSpec.from_config(run_config)
-    root = Path(out_dir) / "runs" / run.run_id
+    root = run_dir(out_dir, run.run_id)
     root.mkdir(parents=True, exist_ok=True)
     (root / "run.json").write_text(json.dumps(run.config(), indent=2) + "\n")
     output_dir = root / "train"
@@ -273,7 +294,7 @@ def run_diagnostics(
 def training_progress(out_dir: Path, run_id: str) -> dict | None:
     """The live state of a run's training read from its log: {"step", "steps", "loss", "started"} (None before
     it starts). lerobot-train's progress bar counts from the step it resumed at."""
-    root = Path(out_dir) / "runs" / run_id
+    root = run_dir(out_dir, run_id)
     try:
         info = json.loads((root / "progress.json").read_text())
         with open(root / "train.log", "rb") as log:
@@ -315,7 +336,7 @@ def eval_unit(
     if threads:
         torch.set_num_threads(threads)
     spec, run = EvalSpec(**eval_config), RunSpec.from_config(run_config)
-    folder = Path(out_dir) / "runs" / run.run_id / "eval"
+    folder = run_dir(out_dir, run.run_id) / "eval"
     folder.mkdir(parents=True, exist_ok=True)
     # the evaluation's own console output (LeRobot's loading messages) goes to its log, not the grid's console
     with open(folder / f"{spec.eval_id}.log", "w") as log, redirect_stdout(log), redirect_stderr(log):
@@ -378,6 +399,6 @@ def _evaluate_rlbench(spec: EvalSpec, run: RunSpec, checkpoint: str, device: str
 def evaluation_progress(out_dir: Path, run_id: str, eval_id: str) -> dict | None:
     """{"done", "episodes", "successes"} of a running evaluation (None before it starts)."""
     try:
-        return json.loads((Path(out_dir) / "runs" / run_id / "eval" / f"{eval_id}.progress").read_text())
+        return json.loads((run_dir(out_dir, run_id) / "eval" / f"{eval_id}.progress").read_text())
     except (OSError, ValueError):
         return None

@@ -1,0 +1,148 @@
+"""The cost model: what a grid's units of work take, in seconds, from measured rates (docs/performance.md,
+"The cost model"). `obsbench run --dry-run` prices a plan with it on a 2-core CPU and on one H200 GPU; the
+driver's progress line estimates a grid's ETA with it until a run reports its own rate."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from lerobot_obsbench.bench.grid import EvalSpec, Grid, RunSpec
+from lerobot_obsbench.bench.units import demo_dir, demo_frames, demos_recorded
+from lerobot_obsbench.envs.base_task import task_spec
+from lerobot_obsbench.schema import CONTROL_SPACES, reads_points
+
+DEMO_FRAMES_PER_EPISODE = 30  # for estimates before the demonstrations exist
+
+# Training samples per second by (device kind, preset) and space kind, for `--dry-run` estimates and a grid's ETA
+# until a run reports its own rate. Which machine measured each figure, and which figures are bounds:
+# docs/performance.md#the-cost-model; tests/test_bench_grid.py holds the measured ones to their benchmark's JSON.
+TRAIN_SAMPLES_PER_SECOND = {
+    ("cpu", "tiny"): {"image": 100.0, "point": 100.0, "none": 200.0},
+    ("cpu", "cpu"): {"image": 170.0, "point": 360.0, "none": 750.0},
+    ("cpu", "paper"): {"image": 2.5, "point": 0.5, "none": 50.0},
+    ("cuda", "tiny"): {"image": 1190.0, "point": 960.0, "none": 1450.0},
+    ("cuda", "cpu"): {"image": 1190.0, "point": 960.0, "none": 1450.0},
+    ("cuda", "paper"): {"image": 270.0, "point": 100.0, "none": 270.0},
+}
+# Evaluation env steps per second with the policy at 64², by lockstep batch size, env start-up included (an
+# unmeasured batch size counts as the largest measured one below it); the same page says where each was measured.
+EVAL_STEPS_PER_SECOND = {"cpu": {1: 23.6, 2: 24.7, 3: 26.1, 4: 24.1}, "cuda": {1: 43.3, 16: 32.6}}
+# One line of the dry run: the machines behind the rates.
+RATES_MEASURED_ON = (
+    "rates: cpu measured on a 2-core CPU machine; cuda on one H200 with a 16-core host (model steps; evaluation on "
+    "ManiSkill's CPU simulation rendering on the GPU: its GPU simulation is not measured); docs/performance.md"
+)
+EVAL_RATE_IMAGE_SIZE = 64
+# The cores of the machine the cpu rates were measured on: more local workers than this share no more of its time.
+CPU_RATE_CORES = 2
+# RLBench env steps per second, on either device: a guess (docs/performance.md#the-cost-model).
+RLBENCH_STEPS_PER_SECOND = {"cpu": 1.0, "cuda": 1.0}
+# The device kinds a plan is priced on, each as one worker: the whole 2-core CPU machine, or one GPU.
+DEVICE_KINDS = ("cpu", "cuda")
+
+
+def device_kind(device: str) -> str:
+    return "cuda" if device.startswith("cuda") else "cpu"
+
+
+def space_kind(obs_space: str) -> str:
+    return "point" if reads_points(obs_space) else "none" if obs_space in CONTROL_SPACES else "image"
+
+
+def train_seconds(run: RunSpec, steps: int, device: str) -> float:
+    rate = TRAIN_SAMPLES_PER_SECOND[(device_kind(device), run.preset)][space_kind(run.obs_space)]
+    # larger images cost more; smaller ones barely less (loading and the fixed per-step work dominate)
+    return steps * run.batch_size / rate * max(run.image_size / 128, 1.0) ** 2 + 20
+
+
+def episode_seconds(
+    episodes: float,
+    max_steps: int,
+    device: str,
+    rlbench: bool = False,
+    batch_size: int = 1,
+    image_size: int = 128,
+    used: float = 0.6,
+) -> float:
+    """Running `episodes` simulated episodes of up to `max_steps` steps, `batch_size` in lockstep, each using
+    `used` of its budget (a successful episode ends early; a failed one runs it out)."""
+    if rlbench:
+        rate = RLBENCH_STEPS_PER_SECOND[device_kind(device)]
+    else:
+        measured = EVAL_STEPS_PER_SECOND[device_kind(device)]
+        rate = measured[max(n for n in measured if n <= batch_size)]
+        if device_kind(device) == "cpu":  # the CPU renderer slows with the frame; the GPU's did not from 64² to 128²
+            rate *= min(1.0, EVAL_RATE_IMAGE_SIZE / image_size)
+    return episodes * max_steps * used / rate + 10
+
+
+def eval_seconds(spec: EvalSpec, device: str, rlbench: bool = False, batch_size: int = 1, image_size: int = 128):
+    return episode_seconds(spec.episodes, spec.max_steps, device, rlbench, batch_size, image_size)
+
+
+def demo_seconds(grid: Grid, run: RunSpec, episodes: int, device: str) -> float:
+    """Recording `episodes` scripted demonstrations of `run`'s task, one env: an expert's step costs what a
+    policy's does in evaluation (the simulator and renderer dominate), and each success comes with the failed
+    attempts its expert's success rate implies, each running out the episode's budget."""
+    failed = episodes * (1 / task_spec(run.task).expert_success_rate - 1)
+    steps = grid.max_steps(run)
+    return episode_seconds(episodes, steps, device, image_size=run.image_size) + episode_seconds(
+        failed, steps, device, image_size=run.image_size, used=1.0
+    )
+
+
+def planned_steps(run: RunSpec, out: Path) -> tuple[int, bool]:
+    """(optimizer steps, exact): frame_epochs budgets are estimated until the demonstrations exist."""
+    if run.budget_unit != "frame_epochs":
+        return run.steps(), True
+    path = demo_dir(out, run, run.demos)
+    if demos_recorded(path):
+        return run.steps(demo_frames(path, run.demos)), True
+    return run.steps(run.demos * DEMO_FRAMES_PER_EPISODE), False
+
+
+@dataclass
+class PlanCost:
+    """What a plan adds up to: optimizer steps, training samples and evaluation episodes, and its seconds with one
+    worker on each of `DEVICE_KINDS`."""
+
+    steps: int = 0
+    samples: int = 0
+    episodes: int = 0
+    seconds: dict[str, float] = field(default_factory=lambda: dict.fromkeys(DEVICE_KINDS, 0.0))
+
+    def add_demos(self, grid: Grid, run: RunSpec, episodes: int) -> None:
+        """Recording `episodes` demonstrations of the dataset `run` trains on."""
+        for kind in DEVICE_KINDS:
+            self.seconds[kind] += demo_seconds(grid, run, episodes, kind)
+
+    def add_run(
+        self, run: RunSpec, steps: int, train: bool, evals: list[EvalSpec], batch_sizes: dict[str, int]
+    ) -> None:
+        """`run`'s `evals`, and its training of `steps` when `train`; `batch_sizes`: each device kind's lockstep
+        evaluation episodes."""
+        if train:
+            self.steps += steps
+            self.samples += steps * run.batch_size
+        self.episodes += sum(s.episodes for s in evals)
+        rlbench = run.rlbench_task is not None
+        for kind in DEVICE_KINDS:
+            self.seconds[kind] += (train_seconds(run, steps, kind) if train else 0) + sum(
+                eval_seconds(s, kind, rlbench, batch_sizes[kind], run.image_size) for s in evals
+            )
+
+    def lines(self, device: str, workers: int = 1) -> list[str]:
+        """The dry run's cost lines for a plan on `device` with `workers` local workers."""
+        cpu, cuda = self.seconds["cpu"], self.seconds["cuda"]
+        lines = [
+            f"  rough cost with one worker: {cpu / 3600:.1f} h on a 2-core CPU, {cuda / 3600:.1f} h "
+            f"on one H200 GPU (planning on {device}; demonstrations to record included)"
+        ]
+        if workers > 1 and device_kind(device) == "cpu":
+            shared = min(workers, CPU_RATE_CORES)
+            lines.append(
+                f"  with {workers} local workers: ~{cpu / 3600 / shared:.1f} h of wall time on a 2-core CPU "
+                f"(the one-worker cost shared evenly by {shared}; measured against real grids in docs/performance.md)"
+            )
+        return [*lines, f"  {RATES_MEASURED_ON}"]

@@ -1,0 +1,136 @@
+"""The jobs the grid's driver hands an engine: one frozen dataclass per unit of work (`units.py`), carrying every
+input its unit needs. Jobs are picklable, so the local pool and Ray take the same ones: a worker runs
+`run_job(job)` (the job's `execute`), and the engine reserves the job's `cpus` and `gpus` for it."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from lerobot_obsbench.bench.grid import EvalSpec, RunSpec
+from lerobot_obsbench.bench.units import demos_unit, eval_unit, train_unit
+
+
+def gpus_for(device: str) -> int:
+    """GPUs a unit asks the engine for on `device`: one on CUDA (Ray then runs one unit per GPU), else none."""
+    return 1 if device.startswith("cuda") else 0
+
+
+@dataclass(frozen=True)
+class DemoJob:
+    """Recording the scripted demonstrations shared by every run of one dataset into `path` (resumable); for an
+    RLBench task, importing them from PerAct's data (`rlbench`: its folder and the CLIP weights)."""
+
+    key: str  # the `RunSpec.demo_key` of the runs that train on them
+    task: str
+    episodes: int
+    path: str
+    image_size: int
+    cameras: tuple[str, ...]
+    rlbench: Mapping[str, str | None] | None = None
+
+    # `demos_unit` is given no device and records with one env process
+    cpus = 1
+    gpus = 0
+
+    def execute(self) -> dict:
+        return demos_unit(
+            task=self.task,
+            episodes=self.episodes,
+            path=self.path,
+            image_size=self.image_size,
+            cameras=list(self.cameras),
+            rlbench=self.rlbench,
+        )
+
+    def describe(self) -> str:
+        return f"demonstrations {self.key}"
+
+
+@dataclass(frozen=True)
+class TrainJob:
+    """Training one run with stock lerobot-train on its `dataset` (resuming from its last checkpoint after a kill),
+    saving `checkpoints` evenly spaced checkpoints, then its diagnostics on the dataset's last `held_out`
+    demonstrations."""
+
+    run: RunSpec
+    dataset: str
+    out: str
+    device: str
+    checkpoints: int
+    held_out: int
+    loader_workers: int
+    threads: int | None
+
+    @property
+    def cpus(self) -> int:
+        return max(1, self.threads or 1)
+
+    @property
+    def gpus(self) -> int:
+        return gpus_for(self.device)
+
+    def execute(self) -> dict:
+        return train_unit(
+            run_config=self.run.config(),
+            dataset=self.dataset,
+            out_dir=self.out,
+            device=self.device,
+            checkpoints=self.checkpoints,
+            held_out=self.held_out,
+            loader_workers=self.loader_workers,
+            threads=self.threads,
+        )
+
+    def describe(self) -> str:
+        return f"training {self.run.run_id} {self.run.method} on {self.run.task}"
+
+
+@dataclass(frozen=True)
+class EvalJob:
+    """Evaluating the checkpoint of `run` saved at `step` (its pretrained_model directory `checkpoint`) as
+    `spec` says, `batch_size` ManiSkill episodes in lockstep; an RLBench run on PerAct's data (`rlbench`)."""
+
+    run: RunSpec
+    spec: EvalSpec
+    checkpoint: str
+    step: int
+    out: str
+    device: str
+    threads: int | None
+    batch_size: int
+    rlbench: Mapping[str, str | None] | None = None
+
+    @property
+    def cpus(self) -> int:
+        # each of the lockstep envs simulates and renders in a process of its own
+        return max(1, self.threads or 1, self.batch_size)
+
+    @property
+    def gpus(self) -> int:
+        return gpus_for(self.device)
+
+    def execute(self) -> dict:
+        return eval_unit(
+            eval_config=self.spec.config(),
+            run_config=self.run.config(),
+            checkpoint=self.checkpoint,
+            checkpoint_step=self.step,
+            out_dir=self.out,
+            device=self.device,
+            threads=self.threads,
+            rlbench=self.rlbench,
+            batch_size=self.batch_size,
+        )
+
+    def describe(self) -> str:
+        spec = self.spec
+        return f"evaluation {spec.eval_id} of {self.run.run_id} ({spec.split}, {spec.checkpoint}, {spec.perturbation})"
+
+
+Job = DemoJob | TrainJob | EvalJob
+
+
+def run_job(job: Job) -> dict:
+    """Run `job`'s unit in this process (an engine's worker); returns its result (a record, for train and eval)."""
+    return job.execute()
