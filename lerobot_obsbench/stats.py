@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 
+from lerobot_obsbench.errors import ConfigError
+
 
 def success_summary(successes: list[bool]) -> dict:
     """The success line of an evaluation's result: episodes, successes, rate and its 95% Wilson interval (rate
@@ -33,14 +35,17 @@ def per_seed(seeds: list[int], successes: list[bool], lengths: list[int]) -> dic
 def wilson_interval(successes: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
     """95% Wilson score interval of a success rate (well behaved at 0 and n successes, unlike the normal one)."""
     if n <= 0:
-        raise ValueError("n must be positive")
+        raise ConfigError("n must be positive")
     if not 0 <= successes <= n:
-        raise ValueError(f"successes must be in 0..{n}; got {successes}")
+        raise ConfigError(f"successes must be in 0..{n}; got {successes}")
     p = successes / n
     denom = 1 + z * z / n
     centre = (p + z * z / (2 * n)) / denom
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
-    return max(0.0, centre - half), min(1.0, centre + half)
+    # exact ends at 0/n and n/n, where rounding would leave the bound a hair off the rate itself
+    low = 0.0 if successes == 0 else max(0.0, centre - half)
+    high = 1.0 if successes == n else min(1.0, centre + half)
+    return low, high
 
 
 def seeds_and_episodes_interval(
@@ -53,10 +58,10 @@ def seeds_and_episodes_interval(
     Beta(k + 1/2, n - k + 1/2) rather than resampling its episodes, so a seed at 0/n or n/n still varies (the
     same reason a Wilson interval is not empty there). `seed`: the bootstrap's own seed (reproducible reports)."""
     if not runs:
-        raise ValueError("runs must name at least one training seed")
+        raise ConfigError("runs must name at least one training seed")
     for k, n in runs:
         if n <= 0 or not 0 <= k <= n:
-            raise ValueError(f"each run needs 0 <= successes <= episodes and episodes > 0; got {k}/{n}")
+            raise ConfigError(f"each run needs 0 <= successes <= episodes and episodes > 0; got {k}/{n}")
     successes, episodes = np.array(runs, dtype=float).T
     rng = np.random.default_rng(seed)
     drawn = rng.integers(0, len(runs), size=(reps, len(runs)))
@@ -64,4 +69,9 @@ def seeds_and_episodes_interval(
     rates = (rng.beta(k + 0.5, n - k + 0.5) * n).sum(axis=1) / n.sum(axis=1)
     tail = (1 - level) / 2
     low, high = np.quantile(rates, [tail, 1 - tail])
+    # as the Jeffreys interval does at 0/n and n/n: the posterior's tail would otherwise leave out the rate itself
+    if not successes.any():
+        low = 0.0
+    if (successes == episodes).all():
+        high = 1.0
     return float(low), float(high)

@@ -184,6 +184,19 @@ def test_training_seeds_pool_their_episodes_and_widen_the_interval():
     assert lo < pooled_lo and hi > pooled_hi  # the two seeds disagree: training variance widens it
 
 
+
+def test_a_method_that_never_or_always_succeeds_has_its_rate_inside_its_interval(tmp_path):
+    """Seeds at 0/n (or n/n) all: the interval over seeds and episodes ends at 0 (or 1), as Jeffreys' does, and
+    the report draws such a grid (a task nothing learns)."""
+    records = [record(f"n{s}", "T", "rgb", 0, seed=s) for s in range(3)]
+    records += [record(f"a{s}", "T", "pointcloud", 10, seed=s) for s in range(3)]
+    cells = cells_by_task(records)["T"]
+    never, always = cells["obs_act/rgb/e"], cells["obs_act/pointcloud/e"]
+    assert never.ci95[0] == 0.0 < never.ci95[1] < 0.5 and 0.5 < always.ci95[0] < always.ci95[1] == 1.0
+    paths = write_report(build_report(stored(*records)), tmp_path / "rep")
+    assert (tmp_path / "rep" / "success_by_task.png").read_bytes()[:4] == b"\x89PNG"
+    assert "0.00 [0.00, " in paths["markdown"].read_text()
+
 def test_varying_learning_rates_become_separate_columns():
     records = [record("a", "T", "rgb", 3, lr=1e-4), record("b", "T", "rgb", 5, lr=1e-3)]
     assert set(cells_by_task(records)["T"]) == {"obs_act/rgb/e lr=0.0001", "obs_act/rgb/e lr=0.001"}
@@ -453,3 +466,19 @@ def test_runs_differing_in_any_trained_field_are_separate_columns():
         cells = cells_by_task(records)["T"]
         assert len(cells) == 2 and all(cell.seeds == 1 for cell in cells.values()), field
         assert any(field in label for label in cells), (field, list(cells))
+
+
+def test_aggregate_intervals_do_not_depend_on_the_global_numpy_state():
+    """rliable draws its bootstrap from NumPy's global generator: the report's intervals are the same whatever
+    ran before it, and the caller's random stream is left where it was."""
+    import numpy as np
+
+    from lerobot_obsbench.bench.aggregates import aggregate_estimates
+
+    scores = {"a": np.array([[0.1, 0.5], [0.3, 0.7], [0.2, 0.9]])}
+    np.random.seed(1)
+    first = aggregate_estimates(scores)
+    np.random.seed(2)
+    expected_next = np.random.RandomState(2).random_sample()
+    assert aggregate_estimates(scores) == first
+    assert np.random.random_sample() == expected_next

@@ -44,12 +44,19 @@ def _interval(data, func) -> tuple[float, np.ndarray]:
     """rliable's stratified bootstrap (percentile, 95%) of `func` over `data` (one matrix, or a pair)."""
     from rliable import library as rly
 
-    with warnings.catch_warnings():
-        # arch deprecates the RandomState rliable hands it; the draws stay the same
-        warnings.simplefilter("ignore", FutureWarning)
-        point, interval = rly.get_interval_estimates(
-            {"x": data}, func, reps=BOOTSTRAP_REPS, random_state=np.random.RandomState(BOOTSTRAP_SEED)
-        )
+    caller_state = np.random.get_state()
+    # rliable's stratified bootstrap draws its indices from NumPy's global generator whatever random_state says:
+    # seeding it (and giving the caller's state back) makes the intervals reproducible
+    np.random.seed(BOOTSTRAP_SEED)
+    try:
+        with warnings.catch_warnings():
+            # arch deprecates the RandomState rliable hands it; the draws stay the same
+            warnings.simplefilter("ignore", FutureWarning)
+            point, interval = rly.get_interval_estimates(
+                {"x": data}, func, reps=BOOTSTRAP_REPS, random_state=np.random.RandomState(BOOTSTRAP_SEED)
+            )
+    finally:
+        np.random.set_state(caller_state)
     return point["x"], interval["x"]
 
 
