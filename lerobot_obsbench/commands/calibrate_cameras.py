@@ -95,8 +95,11 @@ def run(args: argparse.Namespace) -> int:
     camera.connect()
     try:
         images = []
+        # a recording is read as fast as the machine registers its frames, so only a live camera's frame rate
+        # bounds the wait
+        timeout_ms = 30_000 if args.playback else 2000
         for _ in range(args.views):
-            images.append(camera.async_read(timeout_ms=2000))
+            images.append(camera.async_read(timeout_ms=timeout_ms))
             time.sleep(args.interval)
         K, serial = camera.K, camera.serial_number
     finally:
