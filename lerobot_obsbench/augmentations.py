@@ -73,13 +73,13 @@ def register_augmentation(name: str, kind: str, spaces: tuple[str, ...], summary
     tensor; `points` transforms take (xyz (B, N, 3), valid (B, N), centre (3,) or (B, 3)) and return (xyz, valid)
     and must declare their `reach`."""
     if kind not in KINDS:
-        raise ValueError(f"augmentation {name!r}: kind must be one of {KINDS}; got {kind!r}")
+        raise AugmentationError(f"augmentation {name!r}: kind must be one of {KINDS}; got {kind!r}")
     if (kind == "points") != (reach is not None):
-        raise ValueError(f"augmentation {name!r}: point transforms, and only they, declare a reach")
+        raise AugmentationError(f"augmentation {name!r}: point transforms, and only they, declare a reach")
 
     def decorator(apply: Callable) -> Callable:
         if name in _REGISTRY:
-            raise ValueError(f"an augmentation named {name!r} is already registered")
+            raise AugmentationError(f"an augmentation named {name!r} is already registered")
         _REGISTRY[name] = AugmentationInfo(name, kind, tuple(spaces), summary, apply, reach)
         return apply
 

@@ -15,3 +15,23 @@ class ObsBenchError(Exception):
 
 class UsageError(ObsBenchError, ValueError):
     """Command-line arguments that do not fit together (each is valid alone)."""
+
+
+class ConfigError(ObsBenchError, ValueError):
+    """A setting (a config field, a command-line value, a task or encoder declaration) that cannot be used as given."""
+
+
+class MissingFileError(ObsBenchError, FileNotFoundError):
+    """A file or folder the command needs is not there; the message says which command makes it."""
+
+
+class OutputExistsError(ObsBenchError, FileExistsError):
+    """An output folder already holds something this command would overwrite or mix with."""
+
+
+class MissingDependencyError(ObsBenchError, ImportError):
+    """An optional package a feature needs is not installed; the message gives the install command."""
+
+
+class UnsupportedError(ObsBenchError, NotImplementedError):
+    """A combination the plugin does not implement (yet), as opposed to one that is wrong."""

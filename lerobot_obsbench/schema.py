@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_PREFIX, OBS_STATE
 from torch import Tensor
 
-from lerobot_obsbench.errors import ObsBenchError
+from lerobot_obsbench.errors import ConfigError, ObsBenchError
 
 # The plugin's LeRobot policy types (`--policy.type`).
 POLICY_TYPES = ("obs_act", "obs_diffusion")
@@ -68,6 +68,10 @@ POINT_PIPELINES = ("plugin", "official")
 POINT_NORMALIZATIONS = ("metres", "box")
 # How an RLBench [qx, qy, qz, qw] becomes a rotation: as the paper's code reads it (as w, x, y, z), or truly.
 QUATERNION_MODES = ("pcm_compat", "xyzw")
+
+# The repo id a local dataset is opened under: LeRobot's loaders ask for one even when they read a dataset from
+# its folder, and the grids open their recorded demonstrations under this one.
+LOCAL_REPO_ID = "local/obsbench"
 
 STATE_KEY = OBS_STATE
 ENV_STATE_KEY = OBS_ENV_STATE
@@ -115,7 +119,7 @@ class SchemaError(ObsBenchError, ValueError):
 def check_choice(name: str, value: str, choices) -> str:
     """`value` if it is one of `choices`, else a ValueError naming the field and the valid values."""
     if value not in choices:
-        raise ValueError(f"Unknown {name} {value!r}; choose one of {', '.join(choices)}.")
+        raise ConfigError(f"Unknown {name} {value!r}; choose one of {', '.join(choices)}.")
     return value
 
 

@@ -36,6 +36,7 @@ from torch import Tensor, nn
 
 from lerobot_obsbench import geometry
 from lerobot_obsbench.augmentations import Augmenter, parse_augment
+from lerobot_obsbench.errors import ConfigError
 from lerobot_obsbench.schema import (
     BLIND_SPACES,
     CONTROL_SPACES,
@@ -75,11 +76,11 @@ logger = logging.getLogger(__name__)
 def check_geometry(workspace, voxel_size: float, depth_clip) -> None:
     """Workspace box, voxel edge and depth range, checked where they are configured and where they are used."""
     if len(workspace) != 6 or any(workspace[2 * i] >= workspace[2 * i + 1] for i in range(3)):
-        raise ValueError(f"workspace must be (xmin, xmax, ymin, ymax, zmin, zmax) with min < max; got {workspace}")
+        raise ConfigError(f"workspace must be (xmin, xmax, ymin, ymax, zmin, zmax) with min < max; got {workspace}")
     if voxel_size <= 0:
-        raise ValueError(f"voxel_size must be > 0 metres; got {voxel_size}")
+        raise ConfigError(f"voxel_size must be > 0 metres; got {voxel_size}")
     if len(depth_clip) != 2 or not depth_clip[0] < depth_clip[1]:
-        raise ValueError(f"depth_clip must be (near, far) in metres with near < far; got {depth_clip}")
+        raise ConfigError(f"depth_clip must be (near, far) in metres with near < far; got {depth_clip}")
 
 
 class ObservationAdapter(nn.Module):
@@ -113,9 +114,9 @@ class ObservationAdapter(nn.Module):
         self.official_points = check_choice("point_pipeline", point_pipeline, POINT_PIPELINES) == "official"
         self.box_scaled = check_choice("point_normalization", point_normalization, POINT_NORMALIZATIONS) == "box"
         if self.box_scaled and self.frame != "world":
-            raise ValueError(f"point_normalization='box' scales world coordinates by the crop box; frame={frame!r}")
+            raise ConfigError(f"point_normalization='box' scales world coordinates by the crop box; frame={frame!r}")
         if workspace_jitter < 0:
-            raise ValueError(f"workspace_jitter must be >= 0 metres; got {workspace_jitter}")
+            raise ConfigError(f"workspace_jitter must be >= 0 metres; got {workspace_jitter}")
         self.workspace_jitter = float(workspace_jitter)
         self.augment = Augmenter(parse_augment(augment, self.obs_space))
         self.frames_seen, self.frames_empty, self._next_warning = 0, 0, 1  # empty-cloud bookkeeping

@@ -1,6 +1,6 @@
 """Where a grid's units of work run: a local process pool (default) or an existing Ray cluster. Both expose the
-same three calls to the driver — submit a unit with its resources, wait for some to finish, fetch a result —
-and neither schedules anything itself: the pool and Ray do.
+same three calls to the driver — submit a job (`jobs.py`: a unit of work and the resources it asks for), wait
+for some to finish, fetch a result — and neither schedules anything itself: the pool and Ray do.
 """
 
 from __future__ import annotations
@@ -12,7 +12,9 @@ import threading
 
 from tqdm import tqdm
 
+from lerobot_obsbench.bench.jobs import Job, run_job
 from lerobot_obsbench.bench.units import die_with_parent
+from lerobot_obsbench.errors import MissingDependencyError, UsageError
 
 ENGINES = ("local", "ray")
 RAY_HELP = "the Ray engine needs Ray: pip install 'lerobot_policy_obsbench[ray]' (or pip install ray)"
@@ -29,8 +31,8 @@ class LocalEngine:
             self.workers, mp_context=multiprocessing.get_context("spawn"), initializer=_worker_start
         )
 
-    def submit(self, fn, *args, cpus: float = 1, gpus: float = 0):
-        return self.pool.submit(fn, *args)
+    def submit(self, job: Job):
+        return self.pool.submit(run_job, job)
 
     def wait(self, handles: list, timeout: float) -> list:
         done, _ = cf.wait(handles, timeout=timeout, return_when=cf.FIRST_COMPLETED)
@@ -69,18 +71,16 @@ class RayEngine:
         try:
             import ray
         except ImportError as err:
-            raise ImportError(RAY_HELP) from err
+            raise MissingDependencyError(RAY_HELP) from err
         self.ray = ray
         if not ray.is_initialized():
             if address is None:  # a new instance on this machine, reachable on loopback only
                 init_kwargs = {"_node_ip_address": "127.0.0.1", "include_dashboard": False, **init_kwargs}
             ray.init(address=address, log_to_driver=False, **init_kwargs)
-        self._remote = {}
+        self._run_job = ray.remote(run_job)
 
-    def submit(self, fn, *args, cpus: float = 1, gpus: float = 0):
-        if fn not in self._remote:
-            self._remote[fn] = self.ray.remote(fn)
-        return self._remote[fn].options(num_cpus=cpus, num_gpus=gpus, max_retries=0).remote(*args)
+    def submit(self, job: Job):
+        return self._run_job.options(num_cpus=job.cpus, num_gpus=job.gpus, max_retries=0).remote(job)
 
     def wait(self, handles: list, timeout: float) -> list:
         done, _ = self.ray.wait(handles, num_returns=1, timeout=timeout)
@@ -101,4 +101,4 @@ def make_engine(name: str, workers: int = 1, address: str | None = None):
         return LocalEngine(workers)
     if name == "ray":
         return RayEngine(address)
-    raise ValueError(f"Unknown engine {name!r}; choose one of {', '.join(ENGINES)}")
+    raise UsageError(f"Unknown engine {name!r}; choose one of {', '.join(ENGINES)}")

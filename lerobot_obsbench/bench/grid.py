@@ -159,7 +159,7 @@ class RunSpec:
         if self.budget_unit == "demo_epochs":
             return max(1, math.ceil(self.budget * self.demos / self.batch_size))
         if demo_frames is None:
-            raise ValueError("frame_epochs budgets need the demonstrations' frame count")
+            raise GridError("frame_epochs budgets need the demonstrations' frame count")
         return max(1, math.ceil(self.budget * demo_frames / self.batch_size))
 
     @classmethod

@@ -32,6 +32,7 @@ from lerobot.teleoperators import TeleoperatorConfig
 
 from lerobot_obsbench.commands import common
 from lerobot_obsbench.datasets.staging import STAGING, commit, drop_unfinished, temporary
+from lerobot_obsbench.errors import OutputExistsError, UsageError
 from lerobot_obsbench.locks import exclusive_output
 from lerobot_obsbench.robots.checks import RobotSetupError, require_calibrated
 from lerobot_obsbench.robots.frames import action_values, dataset_features, motor_keys, observation_frame
@@ -79,7 +80,7 @@ class RecordingConfig:
 
     def __post_init__(self) -> None:
         if self.num_episodes < 1 or self.fps < 1 or self.episode_time_s <= 0:
-            raise ValueError("--dataset.num_episodes, --dataset.fps and --dataset.episode_time_s must be positive.")
+            raise UsageError("--dataset.num_episodes, --dataset.fps and --dataset.episode_time_s must be positive.")
 
 
 @dataclass
@@ -178,7 +179,7 @@ def _record_locked(robot, teleop, config: RecordingConfig, events: dict | None) 
         if info["episodes"] >= config.num_episodes:
             print(f"{root}: {info['episodes']} episodes already recorded")
             return info
-        raise FileExistsError(
+        raise OutputExistsError(
             f"{root} already holds an aggregated dataset of {info['episodes']} episodes; record more episodes into "
             "another --dataset.root and merge them with lerobot-edit-dataset."
         )

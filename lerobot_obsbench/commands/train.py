@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from lerobot_obsbench.commands import common
-from lerobot_obsbench.errors import UsageError
+from lerobot_obsbench.errors import MissingFileError, UsageError
 
 NAME = "train"
 HELP = (
@@ -64,7 +64,7 @@ def lerobot_train_args(items: list[str]) -> list[str]:
         if root is None:
             raise UsageError(f"env={env} names no OBSBench task; give dataset=DIR")
         if not (Path(root) / "meta" / "info.json").is_file():
-            raise FileNotFoundError(
+            raise MissingFileError(
                 f"no dataset at {root}: record it with `obsbench demos --task {task} --episodes 100 --out {root}` "
                 "(or pass dataset=DIR)"
             )

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from lerobot_obsbench.commands import common
+from lerobot_obsbench.errors import MissingFileError
 from lerobot_obsbench.schema import OBS_SPACES
 
 NAME = "validate"
@@ -32,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
     from lerobot_obsbench.datasets.validation import validate_dataset
 
     if not (Path(args.root) / "meta" / "info.json").is_file():
-        raise FileNotFoundError(f"{args.root} is not a LeRobot dataset (no meta/info.json)")
+        raise MissingFileError(f"{args.root} is not a LeRobot dataset (no meta/info.json)")
     return validate_dataset(args.root, args.repo_id, args.obs_space, args.cameras or None, quick=args.quick)
 
 

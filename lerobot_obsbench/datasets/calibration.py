@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from lerobot_obsbench.camera_calibration import CameraCalibration, write_calibration
+from lerobot_obsbench.errors import MissingFileError
 from lerobot_obsbench.schema import (
     SchemaError,
     image_key,
@@ -37,7 +38,7 @@ def _read_json(path: Path, what: str):
 def _features(root: Path) -> dict:
     info = root / "meta" / "info.json"
     if not info.is_file():
-        raise FileNotFoundError(f"{root} is not a LeRobot dataset (no meta/info.json)")
+        raise MissingFileError(f"{root} is not a LeRobot dataset (no meta/info.json)")
     data = _read_json(info, "the dataset's metadata")
     if not isinstance(data, dict) or not isinstance(data.get("features"), dict):
         raise SchemaError(f"{info}: no 'features' mapping; is the dataset's metadata complete?")
@@ -59,7 +60,7 @@ def realsense_streams(recording: str | Path | None = None, serial: str | None = 
     pipeline, config = rs.pipeline(), rs.config()
     if recording is not None:
         if not Path(recording).is_file():
-            raise FileNotFoundError(f"--from-recording {recording}: no such file")
+            raise MissingFileError(f"--from-recording {recording}: no such file")
         config.enable_device_from_file(str(recording), repeat_playback=False)
     else:
         config.enable_device(serial)
@@ -96,7 +97,7 @@ def read_cam2world(path: str | Path) -> list[list[float]]:
     """A camera pose from `obsbench calibrate-cameras`' saved file (its `cam2world`) or a plain 4x4 JSON matrix."""
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"--cam2world {path}: no such file (`obsbench calibrate-cameras` writes it)")
+        raise MissingFileError(f"--cam2world {path}: no such file (`obsbench calibrate-cameras` writes it)")
     data = _read_json(path, "--cam2world")
     matrix = data.get("cam2world") if isinstance(data, dict) else data
     expected = f"--cam2world {path}: expected a 4x4 matrix of numbers or an object with 'cam2world' (4x4)"
@@ -133,7 +134,7 @@ def attach_calibration(
     sizes.append(_size(depth_feature))
     if from_json is not None:
         if not Path(from_json).is_file():
-            raise FileNotFoundError(f"--from-json {from_json}: no such file")
+            raise MissingFileError(f"--from-json {from_json}: no such file")
         values = _read_json(Path(from_json), "--from-json")
         if not isinstance(values, dict):
             raise SchemaError(f"--from-json {from_json}: expected an object of CameraCalibration fields")

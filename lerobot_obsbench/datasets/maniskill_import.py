@@ -25,6 +25,7 @@ from lerobot_obsbench.datasets.staging import (
 )
 from lerobot_obsbench.envs.base_task import TaskError, task_spec
 from lerobot_obsbench.envs.maniskill import CONTROL_FPS, DEFAULT_CONTROL_MODE, ROBOT_TYPE
+from lerobot_obsbench.errors import ConfigError, MissingFileError
 from lerobot_obsbench.locks import exclusive_output
 from lerobot_obsbench.schema import ACTION_KEY, PRIVILEGED_STATE_KEY, privileged_state_names
 
@@ -34,10 +35,10 @@ SIDECAR = "obsbench_import.json"
 def read_trajectory_metadata(h5_path: Path) -> dict:
     json_path = Path(h5_path).with_suffix(".json")
     if not json_path.is_file():
-        raise FileNotFoundError(f"{json_path} not found: ManiSkill trajectories come as a .h5 + .json pair.")
+        raise MissingFileError(f"{json_path} not found: ManiSkill trajectories come as a .h5 + .json pair.")
     meta = json.loads(json_path.read_text())
     if "env_info" not in meta or "episodes" not in meta:
-        raise ValueError(f"{json_path} is not a ManiSkill trajectory description (no env_info / episodes).")
+        raise ConfigError(f"{json_path} is not a ManiSkill trajectory description (no env_info / episodes).")
     return meta
 
 
@@ -65,7 +66,7 @@ def import_trajectories(
     episodes = [ep for ep in meta["episodes"] if not only_success or ep.get("success", True)]
     episodes = episodes[:max_episodes] if max_episodes else episodes
     if not episodes:
-        raise ValueError(f"{h5_path}: no{' successful' if only_success else ''} episodes to import.")
+        raise ConfigError(f"{h5_path}: no{' successful' if only_success else ''} episodes to import.")
     settings = {
         "source": str(h5_path),
         "task": task,

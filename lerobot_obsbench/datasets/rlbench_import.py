@@ -30,6 +30,7 @@ from lerobot_obsbench.datasets.staging import (
     settings_differences,
     temporary,
 )
+from lerobot_obsbench.errors import ConfigError
 from lerobot_obsbench.locks import exclusive_output
 from lerobot_obsbench.rlbench.format import (
     ACTION_SIZE,
@@ -78,7 +79,7 @@ def import_rlbench(
     spec = rlbench_task(task or task_dir.name)
     check_choice("quaternion", quaternion, QUATERNION_MODES)
     if not cameras:
-        raise ValueError("--cameras: name at least one RLBench camera (front, left_shoulder, right_shoulder, wrist)")
+        raise ConfigError("--cameras: name at least one RLBench camera (front, left_shoulder, right_shoulder, wrist)")
     episodes = find_episodes(task_dir)[:max_episodes]
     language = None if text_encoder is None else text_encoder.name
     settings = {

@@ -42,7 +42,7 @@ from lerobot_obsbench.datasets.staging import (
 from lerobot_obsbench.envs.base_task import DEMO_SEED_START, check_cameras, task_spec
 from lerobot_obsbench.envs.maniskill import CONTROL_FPS, ROBOT_TYPE
 from lerobot_obsbench.envs.vector import make_envs
-from lerobot_obsbench.errors import UsageError
+from lerobot_obsbench.errors import ObsBenchError, UsageError
 from lerobot_obsbench.locks import exclusive_output
 from lerobot_obsbench.schema import (
     ACTION_KEY,
@@ -58,6 +58,10 @@ ATTEMPTS_LOG = "attempts.jsonl"
 SCREEN_BELOW = 0.8
 SIDECAR = "obsbench_demos.json"
 EPISODE_FILE = re.compile(r"seed_(\d+)\.npz")
+
+
+class DemoRecordingError(ObsBenchError, RuntimeError):
+    """The expert did not succeed on enough seeds within the attempts allowed."""
 
 
 def expert_episode(env, spec, seed: int) -> tuple[bool, dict[str, np.ndarray]]:
@@ -220,7 +224,7 @@ def _record_locked(
         bar.close()
         recorders.close()
     if len(successes) < episodes:
-        raise RuntimeError(f"only {len(successes)}/{episodes} successes after {max_attempts} attempts")
+        raise DemoRecordingError(f"only {len(successes)}/{episodes} successes after {max_attempts} attempts")
     seeds = sorted(successes)[:episodes]
     assemble(
         out,

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from lerobot_obsbench.errors import OutputExistsError
 from lerobot_obsbench.locks import LOCK_NAME
 from lerobot_obsbench.schema import ACTION_KEY, DEPTH_PREFIX, IMAGE_PREFIX
 
@@ -124,20 +125,20 @@ def prepare_dataset_out(out: Path, settings: dict, sidecar: str, finished_differ
     elif (out / sidecar).is_file():
         different = finished_differences(json.loads((out / sidecar).read_text()))
         if different:
-            raise FileExistsError(
+            raise OutputExistsError(
                 f"--out {out} already holds a dataset made with other settings ({different}); {choice}"
             )
         return
     elif (out / STAGING / SETTINGS).is_file():
         different = settings_differences(json.loads((out / STAGING / SETTINGS).read_text()), settings)
         if different:
-            raise FileExistsError(
+            raise OutputExistsError(
                 f"--out {out} holds an interrupted run with other settings ({different}); rerun with its settings "
                 f"to resume it, {choice}"
             )
     elif present:
         shown = ", ".join(present[:5]) + (", ..." if len(present) > 5 else "")
-        raise FileExistsError(
+        raise OutputExistsError(
             f"--out {out} is not empty ({shown}) and holds nothing this command made; give a new or empty folder, "
             "or --overwrite to replace what is there"
         )

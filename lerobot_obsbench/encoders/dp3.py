@@ -27,7 +27,7 @@ from torch import Tensor, nn
 
 from lerobot_obsbench import geometry
 from lerobot_obsbench.encoders.point_tokenizer import POINT_NORMS, masked_apply
-from lerobot_obsbench.encoders.registry import EncoderContext, EncoderOutput, register_encoder
+from lerobot_obsbench.encoders.registry import EncoderContext, EncoderError, EncoderOutput, register_encoder
 from lerobot_obsbench.schema import POINT_SPACES, PointCloud, input_channels
 
 # DP3's per-point widths (`block_channel`) per point-feature choice, and whether the last layer is a bare Linear.
@@ -39,7 +39,7 @@ DP3_NUM_POINTS = 512  # DP3's Adroit / MetaWorld point count (the builder's defa
 
 def check_point_features(point_features: str) -> str:
     if point_features not in DP3_WIDTHS:
-        raise ValueError(
+        raise EncoderError(
             f"encoder 'dp3' encodes xyz (DP3's PointNetEncoderXYZ) or rgb+xyz (PointNetEncoderXYZRGB) points; "
             f"got point_features={point_features!r} (choose one of {', '.join(DP3_WIDTHS)})"
         )
@@ -55,7 +55,7 @@ class DP3Encoder(nn.Module):
         super().__init__()
         check_point_features(point_features)
         if num_points < 1:
-            raise ValueError(f"num_tokens (the points DP3 samples) must be >= 1; got {num_points}")
+            raise EncoderError(f"num_tokens (the points DP3 samples) must be >= 1; got {num_points}")
         self.output, self.num_points, self.norm = output, num_points, norm
         norm_layer = nn.LayerNorm if norm == "layer" else nn.BatchNorm1d
         in_channels = input_channels("pointcloud", point_features)
@@ -77,7 +77,7 @@ class DP3Encoder(nn.Module):
         """DP3's FPS down-sampling: features (B, M, C) of at most `num_points` points per cloud, and their mask."""
         if cloud.features.shape[1] <= self.num_points:
             return cloud.features, cloud.mask
-        # beyond the paper, so no seeds to match: CPU may start large clouds where QuickFPS does (3-7x faster)
+        # beyond the paper, so no seeds to match: CPU may start large clouds where QuickFPS does, the faster start
         idx, mask = geometry.farthest_point_sample(cloud.xyz, cloud.mask, self.num_points, start="any")
         return geometry.gather(cloud.features, idx), mask
 

@@ -29,7 +29,7 @@ from lerobot.policies.diffusion.modeling_diffusion import SpatialSoftmax
 from torch import Tensor, nn
 
 from lerobot_obsbench.encoders.image_input import as_frame_size, resize
-from lerobot_obsbench.encoders.registry import EncoderContext, EncoderOutput, register_encoder
+from lerobot_obsbench.encoders.registry import EncoderContext, EncoderError, EncoderOutput, register_encoder
 from lerobot_obsbench.schema import IMAGE_SPACES, input_channels
 
 # (out channels, kernel, stride) of each conv layer; padding kernel // 2 ("same" at stride 1).
@@ -62,7 +62,7 @@ class SpatialSoftmaxEncoder(nn.Module):
     ):
         super().__init__()
         if num_keypoints < 1:
-            raise ValueError(f"num_keypoints must be >= 1; got {num_keypoints}")
+            raise EncoderError(f"num_keypoints must be >= 1; got {num_keypoints}")
         self.output, self.input_size, self.num_keypoints = output, input_size, num_keypoints
         self.frame_size = (input_size, input_size) if input_size else tuple(image_size)
         layers: list[nn.Module] = []
@@ -89,7 +89,7 @@ class SpatialSoftmaxEncoder(nn.Module):
         if self.input_size:
             frames = resize(frames, self.input_size)
         if tuple(frames.shape[-2:]) != self.frame_size:
-            raise ValueError(
+            raise EncoderError(
                 f"spatial_softmax was built for {self.frame_size[0]}x{self.frame_size[1]} frames (its soft-argmax "
                 f"grid is fixed) but got {frames.shape[-2]}x{frames.shape[-1]}; build it with image_size= the "
                 "camera resolution, or resize frames with input_size (--policy.image_input_size)"

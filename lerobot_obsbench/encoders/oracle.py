@@ -11,13 +11,13 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from lerobot_obsbench.encoders.registry import EncoderContext, EncoderOutput, register_encoder
+from lerobot_obsbench.encoders.registry import EncoderContext, EncoderError, EncoderOutput, register_encoder
 from lerobot_obsbench.schema import ORACLE_SPACES, POSE_SIZE
 
 
 def _objects(state_dim: int) -> int:
     if state_dim < POSE_SIZE or state_dim % POSE_SIZE:
-        raise ValueError(
+        raise EncoderError(
             f"the oracle reads {POSE_SIZE} values (xyz + quaternion wxyz) per object; got a privileged state of "
             f"size {state_dim} (the dataset's observation.privileged_state, recorded by obsbench demos)"
         )

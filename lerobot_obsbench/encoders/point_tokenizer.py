@@ -20,7 +20,7 @@ import torch
 from torch import Tensor, nn
 
 from lerobot_obsbench import geometry
-from lerobot_obsbench.encoders.registry import EncoderContext, EncoderOutput
+from lerobot_obsbench.encoders.registry import EncoderContext, EncoderError, EncoderOutput
 from lerobot_obsbench.schema import SAMPLING, PointCloud, check_choice
 
 
@@ -74,7 +74,7 @@ DP_HEAD_CHANNELS = 128  # the official Diffusion Policy point-cloud feature
 GLOBAL_HEADS = ("maxpool", "official")
 PIPELINES = ("plugin", "official")
 # Where each pipeline's FPS starts: the official code's CUDA FPS starts every cloud at its first point, on every
-# device here too; the plugin's lets CPU take QuickFPS's start, 3-7x faster on clouds of 2-10k points.
+# device here too; the plugin's lets CPU take QuickFPS's start, the faster one there (`geometry._fps_fpsample`).
 FPS_START = {"plugin": "any", "official": "first"}
 
 
@@ -145,11 +145,11 @@ class PointTokenOptions:
         check_choice("pipeline", self.pipeline, PIPELINES)
         check_choice("global_head", self.global_head, GLOBAL_HEADS)
         if self.num_tokens < 1 or self.knn < 1:
-            raise ValueError(f"num_tokens and knn must be >= 1; got {self.num_tokens}, {self.knn}")
+            raise EncoderError(f"num_tokens and knn must be >= 1; got {self.num_tokens}, {self.knn}")
         if self.position_scale <= 0:
-            raise ValueError(f"position_scale must be > 0; got {self.position_scale}")
+            raise EncoderError(f"position_scale must be > 0; got {self.position_scale}")
         if self.global_head == "official" and self.sampling != "post":
-            raise ValueError(
+            raise EncoderError(
                 "global_head='official' is the official post-sampling tokenizer + projector; "
                 "use sampling='post' with it"
             )
@@ -218,7 +218,7 @@ class PointTokenEncoder(nn.Module):
         self, cloud: PointCloud, point_feats: Tensor, neighbours: Tensor, seeds: Tensor, seed_mask: Tensor
     ) -> Tensor:
         """The post-sampling tokens without the (seeds x knn x dim) tensor, for inference: the same map, to float
-        rounding (tested), 2-3x faster at 2,048 tokens.
+        rounding (tested), and faster (docs/performance.md#measured-design-choices).
 
         A grouped point's input is feature_proj(f) + offset_proj(xyz - seed) = P[neighbour] - offset_proj(seed),
         with P = feature_proj(f) + offset_proj(xyz) computed once per point. With frozen statistics BatchNorm is

@@ -32,11 +32,20 @@ from dataclasses import dataclass, field
 import torch
 from torch import nn
 
+from lerobot_obsbench.errors import ObsBenchError
 from lerobot_obsbench.schema import FUSED_SPACES, OBS_SPACES, check_obs_space
 
 OUTPUTS = ("tokens", "global")
 # Builder parameters every encoder has; the rest of a builder's signature are its options.
 BUILD_ARGS = ("obs_space", "output", "dim")
+
+
+class EncoderError(ObsBenchError, ValueError):
+    """An encoder name, option or space pairing that cannot be built, or an encoder registered wrongly."""
+
+
+class EncoderOptionError(EncoderError, TypeError):
+    """An option the encoder's builder does not take (a TypeError, as a wrong keyword argument is)."""
 
 
 @dataclass(frozen=True)
@@ -95,22 +104,22 @@ def register_encoder(
     """
     unknown = set(spaces) - set(OBS_SPACES)
     if unknown:
-        raise ValueError(f"encoder {name!r} declares unknown spaces {sorted(unknown)}")
+        raise EncoderError(f"encoder {name!r} declares unknown spaces {sorted(unknown)}")
     if not set(default_for) <= set(spaces):
-        raise ValueError(f"encoder {name!r} cannot be the default of spaces it does not accept: {default_for}")
+        raise EncoderError(f"encoder {name!r} cannot be the default of spaces it does not accept: {default_for}")
 
     def decorator(build: Callable[..., nn.Module]) -> Callable[..., nn.Module]:
         if name in _REGISTRY:
-            raise ValueError(f"an encoder named {name!r} is already registered ({_REGISTRY[name].summary})")
+            raise EncoderError(f"an encoder named {name!r} is already registered ({_REGISTRY[name].summary})")
         params = inspect.signature(build).parameters
         if any(p.kind in (p.VAR_KEYWORD, p.VAR_POSITIONAL) for p in params.values()):
-            raise ValueError(f"encoder {name!r}: the builder must name its options (no *args / **kwargs)")
+            raise EncoderError(f"encoder {name!r}: the builder must name its options (no *args / **kwargs)")
         if tuple(params)[: len(BUILD_ARGS)] != BUILD_ARGS:
-            raise ValueError(f"encoder {name!r}: the builder's first parameters must be {BUILD_ARGS}")
+            raise EncoderError(f"encoder {name!r}: the builder's first parameters must be {BUILD_ARGS}")
         for space in default_for:
             taken = [i.name for i in _REGISTRY.values() if space in i.default_for]
             if taken:
-                raise ValueError(f"encoder {name!r}: {taken[0]!r} is already the default encoder of {space!r}")
+                raise EncoderError(f"encoder {name!r}: {taken[0]!r} is already the default encoder of {space!r}")
         options, defaults, option_sets = [], {}, {}
         for key in tuple(params)[len(BUILD_ARGS) :]:
             default = params[key].default
@@ -125,7 +134,7 @@ def register_encoder(
                 defaults[key] = default
         unknown_choices = sorted(set(choices or {}) - set(options))
         if unknown_choices:
-            raise ValueError(f"encoder {name!r}: choices given for options it does not take: {unknown_choices}")
+            raise EncoderError(f"encoder {name!r}: choices given for options it does not take: {unknown_choices}")
         _REGISTRY[name] = EncoderInfo(
             name,
             tuple(spaces),
@@ -160,7 +169,7 @@ def encoder_info(name: str) -> EncoderInfo:
     parts = name.split("+")
     if len(parts) > 1 and all(part in _REGISTRY for part in parts):
         return _fused_info(tuple(parts))
-    raise ValueError(
+    raise EncoderError(
         f"Unknown encoder {name!r}; registered encoders: {', '.join(sorted(_REGISTRY))} (a fused space takes one "
         f"per part joined by '+', e.g. {'+'.join(default_encoder(p) for p in next(iter(FUSED_SPACES.values())))})."
     )
@@ -191,7 +200,7 @@ def _fused_info(parts: tuple[str, ...]) -> EncoderInfo:
         if len(space_parts) == len(infos) and all(sp in i.spaces for sp, i in zip(space_parts, infos, strict=True))
     )
     if not spaces:
-        raise ValueError(
+        raise EncoderError(
             f"encoder {'+'.join(parts)!r}: no fused space has parts these encoders accept in this order "
             f"(fused spaces: {', '.join(f'{k} = {" + ".join(v)}' for k, v in FUSED_SPACES.items())})"
         )
@@ -233,7 +242,7 @@ def default_encoder(obs_space: str) -> str:
     for info in _REGISTRY.values():
         if obs_space in info.default_for:
             return info.name
-    raise ValueError(f"no encoder is registered as the default for obs_space={obs_space!r}")
+    raise EncoderError(f"no encoder is registered as the default for obs_space={obs_space!r}")
 
 
 def valid_pairs() -> str:
@@ -245,7 +254,7 @@ def check_encoder(name: str, obs_space: str) -> None:
     info = encoder_info(name)
     check_obs_space(obs_space)
     if obs_space not in info.spaces:
-        raise ValueError(
+        raise EncoderError(
             f"Encoder {name!r} does not accept obs_space={obs_space!r}. Encoders for {obs_space!r}: "
             f"{', '.join(available_encoders(obs_space))}. Valid pairs: {valid_pairs()}."
         )
@@ -254,15 +263,17 @@ def check_encoder(name: str, obs_space: str) -> None:
 def _checked(name: str, obs_space: str, output: str, options: dict) -> EncoderInfo:
     check_encoder(name, obs_space)
     if output not in OUTPUTS:
-        raise ValueError(f"output must be one of {OUTPUTS}; got {output!r}")
+        raise EncoderError(f"output must be one of {OUTPUTS}; got {output!r}")
     info = encoder_info(name)
     unknown = sorted(set(options) - set(info.options))
     if unknown:
-        raise TypeError(f"encoder {name!r} takes no option(s) {unknown}; it accepts: {', '.join(info.options)}")
+        raise EncoderOptionError(
+            f"encoder {name!r} takes no option(s) {unknown}; it accepts: {', '.join(info.options)}"
+        )
     for option, allowed in info.choices.items():
         value = options.get(option)
         if value is not None and value not in allowed:
-            raise ValueError(f"encoder {name!r}: {option}={value!r} is not one of {', '.join(map(str, allowed))}")
+            raise EncoderError(f"encoder {name!r}: {option}={value!r} is not one of {', '.join(map(str, allowed))}")
     return info
 
 

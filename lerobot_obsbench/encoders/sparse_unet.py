@@ -25,6 +25,7 @@ import torch
 from torch import Tensor, nn
 
 from lerobot_obsbench import geometry
+from lerobot_obsbench.errors import MissingDependencyError
 
 ENCODER_CHANNELS, ENCODER_BLOCKS = (32, 64, 128, 256), (2, 3, 4, 6)
 DECODER_CHANNELS, DECODER_BLOCKS = (256, 128, 96, 96), (2, 2, 2, 2)
@@ -49,7 +50,7 @@ def import_spconv():
         from spconv.pytorch import cppcore, ops, utils
         from spconv.pytorch import hash as sp_hash
     except ImportError as err:
-        raise ImportError(SPCONV_HELP) from err
+        raise MissingDependencyError(SPCONV_HELP) from err
     for module in (cppcore, ops, sp_hash, utils):
         if hasattr(module, "get_current_stream"):
             module.get_current_stream = _current_stream

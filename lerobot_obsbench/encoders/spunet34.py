@@ -20,7 +20,7 @@ from lerobot_obsbench.encoders.point_tokenizer import (
     describe_point_tokens,
 )
 from lerobot_obsbench.encoders.pretrained import load_matching, read_state_dict
-from lerobot_obsbench.encoders.registry import register_encoder
+from lerobot_obsbench.encoders.registry import EncoderError, register_encoder
 from lerobot_obsbench.schema import input_channels
 
 PONDERV2_CONDITIONS = ("ScanNet", "S3DIS", "Structured3D")
@@ -32,7 +32,7 @@ def ponderv2_to_spunet(state: dict[str, Tensor], condition: str = "ScanNet") -> 
     """PonderV2 checkpoint (`module.backbone.*` with PDNorm, `module.embedding_table.weight`) -> SpUNet keys,
     keeping the norms of `condition` and folding its adaptive modulation into the BatchNorm affine."""
     if condition not in PONDERV2_CONDITIONS:
-        raise ValueError(f"PonderV2 condition must be one of {PONDERV2_CONDITIONS}; got {condition!r}")
+        raise EncoderError(f"PonderV2 condition must be one of {PONDERV2_CONDITIONS}; got {condition!r}")
     k = PONDERV2_CONDITIONS.index(condition)
     backbone = {key[len("module.backbone.") :]: v for key, v in state.items() if key.startswith("module.backbone.")}
     table = state.get("module.embedding_table.weight", backbone.pop("embedding_table.weight", None))
@@ -48,7 +48,7 @@ def ponderv2_to_spunet(state: dict[str, Tensor], condition: str = "ScanNet") -> 
     for key in [key for key in backbone if key.endswith(".modulation.1.weight")]:
         norm = key[: -len(".modulation.1.weight")]
         if table is None:
-            raise ValueError("PonderV2 checkpoint has adaptive norms but no embedding_table")
+            raise EncoderError("PonderV2 checkpoint has adaptive norms but no embedding_table")
         context = torch.nn.functional.silu(table[k])
         shift, scale = (backbone[key] @ context + backbone[f"{norm}.modulation.1.bias"]).chunk(2)
         out[f"{norm}.weight"] = out[f"{norm}.weight"] * (1 + scale)

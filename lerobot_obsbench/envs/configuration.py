@@ -11,6 +11,7 @@ from lerobot.envs.configs import EnvConfig
 from lerobot_obsbench.envs.base_task import TASKS, check_cameras, task_spec
 from lerobot_obsbench.envs.maniskill import ACTION_DIMS, CONTROL_FPS, CONTROL_MODES, DEFAULT_CONTROL_MODE, STATE_DIM
 from lerobot_obsbench.envs.perturbations import parse_perturbation
+from lerobot_obsbench.errors import ConfigError
 from lerobot_obsbench.schema import ACTION_KEY, ENV_STATE_KEY, STATE_KEY, image_key
 
 
@@ -45,7 +46,7 @@ class ObsBenchEnvConfig(EnvConfig):
         parse_perturbation(self.perturbation)  # a typo fails here, not after the policy loaded
         check_cameras(spec, self.cameras)
         if self.control_mode not in CONTROL_MODES:
-            raise ValueError(f"control_mode must be one of {CONTROL_MODES}; got {self.control_mode!r}")
+            raise ConfigError(f"control_mode must be one of {CONTROL_MODES}; got {self.control_mode!r}")
         size = (self.image_size, self.image_size, 3)
         self.features = {
             "action": PolicyFeature(FeatureType.ACTION, (ACTION_DIMS[self.control_mode],)),
@@ -96,7 +97,7 @@ def env_type_name(task: str) -> str:
 def _named_post_init(self) -> None:
     expected = NAMED_ENVS[self.type]
     if self.task != expected:
-        raise ValueError(
+        raise ConfigError(
             f"--env.type={self.type} is the task {expected}; got --env.task={self.task}. Use "
             f"--env.type={env_type_name(self.task)}, or --env.type=obsbench with --env.task."
         )

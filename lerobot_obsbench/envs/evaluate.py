@@ -45,7 +45,7 @@ from lerobot_obsbench.envs.maniskill import (
     make_obsbench_env,
 )
 from lerobot_obsbench.envs.vector import make_envs
-from lerobot_obsbench.errors import UsageError
+from lerobot_obsbench.errors import ConfigError, UsageError
 from lerobot_obsbench.outputs import write_json_atomic, write_text_atomic
 from lerobot_obsbench.policies.loading import load_policy
 from lerobot_obsbench.schema import check_compatibility
@@ -130,7 +130,7 @@ def evaluate(
     finished episode (for a grid's live progress)."""
     spec = task_spec(task)
     if batch_size < 1:
-        raise ValueError(f"--eval.batch_size must be >= 1; got {batch_size}")
+        raise ConfigError(f"--eval.batch_size must be >= 1; got {batch_size}")
     seeds = eval_seeds(episodes, split)
     slots = min(batch_size, len(seeds))
     sim = choose_sim_backend(sim_backend, device, slots, perturbation)

@@ -36,7 +36,7 @@ from lerobot_obsbench.envs.base_task import (
     to_numpy,
 )
 from lerobot_obsbench.envs.perturbations import apply_scene_perturbation, camera_overrides, parse_perturbation
-from lerobot_obsbench.errors import ObsBenchError, UsageError
+from lerobot_obsbench.errors import ConfigError, ObsBenchError, UsageError
 from lerobot_obsbench.schema import (
     ENV_STATE_KEY,
     MIN_IMAGE_SIZE,
@@ -68,6 +68,10 @@ class RenderingError(ObsBenchError, RuntimeError):
 
 class GpuSimulationError(ObsBenchError, RuntimeError):
     """ManiSkill's GPU simulation could not start: SAPIEN has no GPU PhysX library and could not fetch one."""
+
+
+class BatchedEnvError(ObsBenchError, RuntimeError):
+    """A one-env call (reset, step, render) on an env that holds several."""
 
 
 def physx_gpu_library():
@@ -177,9 +181,9 @@ class ObsBenchEnv(gym.Env):
         self.render_backend = render_backend(device)
         self.num_envs, self.sim_backend = num_envs, check_sim_backend(sim_backend, num_envs, self.render_backend)
         if control_mode not in CONTROL_MODES:
-            raise ValueError(f"control_mode must be one of {CONTROL_MODES}; got {control_mode!r}")
+            raise ConfigError(f"control_mode must be one of {CONTROL_MODES}; got {control_mode!r}")
         if not isinstance(image_size, int) or image_size < MIN_IMAGE_SIZE:
-            raise ValueError(f"image_size must be a whole number of pixels >= {MIN_IMAGE_SIZE}; got {image_size!r}")
+            raise ConfigError(f"image_size must be a whole number of pixels >= {MIN_IMAGE_SIZE}; got {image_size!r}")
         import_maniskill(asset_dir)
         if missing_assets(spec):
             raise TaskError(asset_help(spec, asset_dir or os.environ.get("MS_ASSET_DIR")))
@@ -346,7 +350,7 @@ class ObsBenchEnv(gym.Env):
         """Reset every env, env i with `seeds[i]` (None: unseeded); the batched env observation and info."""
         seed = None if seeds is None else [int(s) for s in seeds]
         if seed is not None and len(seed) != self.num_envs:
-            raise ValueError(f"reset_all needs one seed per env ({self.num_envs}); got {len(seed)}")
+            raise ConfigError(f"reset_all needs one seed per env ({self.num_envs}); got {len(seed)}")
         obs, info = self._env.reset(seed=seed, options=options)
         rebuilt = self._drop_unread_cameras()  # ManiSkill's observation drew the cameras it rebuilt
         if self.spec_.initialize(self.unwrapped_ms) or rebuilt:
@@ -374,7 +378,7 @@ class ObsBenchEnv(gym.Env):
 
     def _first_env(self, value):
         if self.num_envs != 1:
-            raise RuntimeError(f"this ObsBenchEnv holds {self.num_envs} envs: use reset_all / step_all / render_all")
+            raise BatchedEnvError(f"this ObsBenchEnv holds {self.num_envs} envs: use reset_all / step_all / render_all")
         if isinstance(value, dict):
             return {key: self._first_env(v) for key, v in value.items()}
         return to_numpy(value[0])

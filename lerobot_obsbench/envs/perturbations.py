@@ -120,7 +120,7 @@ def capture_look_at(ms_env) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         sapien_utils.look_at = original
     configs = configs if isinstance(configs, (list, tuple)) else [configs]
     if len(calls) != len(configs):
-        raise ValueError(f"cannot find the look-at points of {type(ms_env).__name__}'s cameras")
+        raise PerturbationError(f"cannot find the look-at points of {type(ms_env).__name__}'s cameras")
     return {config.uid: call for config, call in zip(configs, calls, strict=True)}
 
 
@@ -158,7 +158,7 @@ def apply_scene_perturbation(ms_env, perturbation: Perturbation) -> None:
                 a for s in surfaces if s is not None for a in (getattr(s, "table", None), getattr(s, "ground", None))
             ]
             if not any(a is not None for a in actors):
-                raise ValueError(f"{type(ms_env).__name__} has no table scene whose colour could change")
+                raise PerturbationError(f"{type(ms_env).__name__} has no table scene whose colour could change")
             # A flat texture of the colour: the renderer's material update path ignores base_color alone.
             pixel = np.round(np.array([*perturbation.value, 1.0]) * 255).astype(np.uint8)
             flat = sapien.render.RenderTexture2D(np.tile(pixel, (4, 4, 1)), "R8G8B8A8Unorm", srgb=True)

@@ -30,7 +30,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from lerobot_obsbench.envs.base_task import to_numpy
-from lerobot_obsbench.errors import ObsBenchError
+from lerobot_obsbench.errors import ConfigError, ObsBenchError
 
 # Episodes advanced together by default, per device kind: the measured N with the least time per episode
 # (docs/performance.md#the-cost-model; on a GPU host, starting one worker process per env costs more than it saves
@@ -232,7 +232,7 @@ class BatchedEnvs:
 
     def reset(self, seeds: Sequence[int]) -> dict:
         if not 0 < len(seeds) <= self.size:
-            raise ValueError(f"a wave of {len(seeds)} seeds for {self.size} batched envs")
+            raise ConfigError(f"a wave of {len(seeds)} seeds for {self.size} batched envs")
         self.rows = len(seeds)
         observations, _ = self.env.reset_all([*seeds, *[seeds[-1]] * (self.size - len(seeds))])
         return _first_rows(observations, self.rows)
@@ -264,7 +264,7 @@ def make_envs(make_env: Callable, env_kwargs: dict, size: int, batched: bool = F
     """`size` envs for lockstep evaluation: one in this process, one per worker process, or (`batched`) all in one
     env object that simulates them together."""
     if size < 1:
-        raise ValueError(f"the evaluation batch size must be >= 1; got {size}")
+        raise ConfigError(f"the evaluation batch size must be >= 1; got {size}")
     if batched:
         return BatchedEnvs(make_env, env_kwargs, size)
     return InProcessEnvs(make_env, env_kwargs) if size == 1 else SubprocessEnvs(make_env, env_kwargs, size)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from lerobot_obsbench.errors import ObsBenchError
+from lerobot_obsbench.errors import MissingFileError, ObsBenchError
 
 
 class CheckpointError(ObsBenchError, ValueError):
@@ -43,7 +43,7 @@ def load_policy(path: str | Path, device: str = "cpu"):
             raise
         offline = os.environ.get("HF_HUB_OFFLINE", "0").lower() in ("1", "true", "yes")
         where = "the Hub is off (HF_HUB_OFFLINE=1)" if offline else "the Hub did not provide it"
-        raise FileNotFoundError(
+        raise MissingFileError(
             f"policy {path}: no local directory of that name, not in the Hugging Face cache, and {where} "
             f"({type(err).__name__}). Download it where the Hub is reachable (`huggingface-cli download {path}`) "
             "or pass a local pretrained_model directory."
@@ -75,14 +75,14 @@ def check_policy_path(path: str | Path) -> None:
     local = Path(text).expanduser()
     if local.is_dir():
         if not (local / "config.json").is_file():
-            raise FileNotFoundError(
+            raise MissingFileError(
                 f"{local} is not a checkpoint: it has no config.json (pass the `pretrained_model` directory, e.g. "
                 "outputs/train/RUN/checkpoints/last/pretrained_model)"
             )
         return
     looks_like_repo_id = text.count("/") == 1 and not text.startswith((".", "/", "~")) and not local.suffix
     if not looks_like_repo_id:
-        raise FileNotFoundError(
+        raise MissingFileError(
             f"policy checkpoint {text} not found (a `pretrained_model` directory written by lerobot-train, or a "
             "Hub repo id ORG/NAME)"
         )

@@ -19,6 +19,7 @@ from lerobot_obsbench.encoders import (
     default_encoder,
     encoder_info,
 )
+from lerobot_obsbench.errors import ConfigError
 from lerobot_obsbench.policies.onecycle import OneCycleSchedulerConfig
 from lerobot_obsbench.schema import (
     DEPTH_IMAGE_SPACES,
@@ -225,15 +226,15 @@ class ObservationConfig:
         check_choice("point_normalization", self.point_normalization, POINT_NORMALIZATIONS)
         parse_augment(self.augment, self.obs_space)
         if self.image_input_size is not None and self.image_input_size < 16:
-            raise ValueError(f"image_input_size must be >= 16 pixels or None; got {self.image_input_size}")
+            raise ConfigError(f"image_input_size must be >= 16 pixels or None; got {self.image_input_size}")
         if self.optimizer_grad_clip_norm < 0:
-            raise ValueError(f"optimizer_grad_clip_norm must be >= 0; got {self.optimizer_grad_clip_norm}")
+            raise ConfigError(f"optimizer_grad_clip_norm must be >= 0; got {self.optimizer_grad_clip_norm}")
         check_geometry(self.workspace, self.voxel_size, self.depth_clip)
         if self.workspace_jitter < 0:
-            raise ValueError(f"workspace_jitter must be >= 0 metres; got {self.workspace_jitter}")
+            raise ConfigError(f"workspace_jitter must be >= 0 metres; got {self.workspace_jitter}")
         for name in ("num_tokens", "knn"):
             if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1; got {getattr(self, name)}")
+                raise ConfigError(f"{name} must be >= 1; got {getattr(self, name)}")
         self.check_ablations()
         self.check_replaced_fields()
 
@@ -242,7 +243,7 @@ class ObservationConfig:
         info = encoder_info(self.encoder)
         if self.pretrained and not info.pretrained:
             with_weights = [n for n in available_encoders(self.obs_space) if encoder_info(n).pretrained]
-            raise ValueError(
+            raise ConfigError(
                 f"encoder {self.encoder!r} has no pretrained weights (pretrained={self.pretrained!r}); "
                 f"encoders for {self.obs_space!r} that load weights: {', '.join(with_weights) or 'none'}"
             )
@@ -251,38 +252,38 @@ class ObservationConfig:
                 continue
             value, default = getattr(self, name), self.field_default(name)
             if not reads_points(self.obs_space) and name in POINT_CHOICES:
-                raise ValueError(
+                raise ConfigError(
                     f"{name}={value!r} is a point-cloud design choice; obs_space={self.obs_space!r} has "
                     f"none (use obs_space='pointcloud' or leave {name}={default!r})"
                 )
-            raise ValueError(
+            raise ConfigError(
                 f"{name}={value!r} is not an option of encoder {self.encoder!r} (it takes "
                 f"{', '.join(info.options) or 'no options'}); leave {name}={default!r}"
             )
         for name, option in self.ENCODER_FIELDS.items():
             allowed, value = info.choices.get(option), getattr(self, name)
             if allowed and value is not None and value not in allowed:
-                raise ValueError(
+                raise ConfigError(
                     f"{name}={value!r}: encoder {self.encoder!r} takes {', '.join(allowed)} (or None, its own)"
                 )
         if self._non_default("depth_normalization") and self.obs_space not in DEPTH_IMAGE_SPACES:
-            raise ValueError(
+            raise ConfigError(
                 f"depth_normalization={self.depth_normalization!r} scales depth / xyz images; obs_space="
                 f"{self.obs_space!r} has none (spaces that do: {', '.join(DEPTH_IMAGE_SPACES)})"
             )
         if self.workspace_jitter and not reads_points(self.obs_space):
-            raise ValueError(
+            raise ConfigError(
                 f"workspace_jitter={self.workspace_jitter} jitters the point-cloud crop; obs_space={self.obs_space!r} "
                 "crops nothing (use obs_space='pointcloud' or leave workspace_jitter=0)"
             )
         if self._non_default("point_normalization") and (not reads_points(self.obs_space) or self.frame != "world"):
-            raise ValueError(
+            raise ConfigError(
                 f"point_normalization={self.point_normalization!r} scales world-frame point clouds by the crop box; "
                 f"obs_space={self.obs_space!r} with frame={self.frame!r} has none (use obs_space='pointcloud' with "
                 "frame='world', or leave point_normalization='metres')"
             )
         if self.frame != "world" and not has_positions(self.obs_space):
-            raise ValueError(
+            raise ConfigError(
                 f"frame={self.frame!r} changes point coordinates; obs_space={self.obs_space!r} has none "
                 "(use pointcloud or pointmap, or leave frame='world')"
             )
@@ -291,7 +292,7 @@ class ObservationConfig:
         """LeRobot fields this policy does not use: refuse a value the user set, naming what to use instead."""
         for name, instead in self.REPLACED_FIELDS.items():
             if self._non_default(name):
-                raise ValueError(
+                raise ConfigError(
                     f"{self.type}: {name}={getattr(self, name)!r} has no effect in this plugin's policies; {instead}"
                 )
 

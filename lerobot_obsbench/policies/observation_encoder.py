@@ -9,6 +9,7 @@ from torch import Tensor, nn
 
 from lerobot_obsbench import geometry
 from lerobot_obsbench.encoders import encoder_output, make_encoder
+from lerobot_obsbench.errors import UnsupportedError
 from lerobot_obsbench.schema import BLIND_SPACES, EE_POSE_SIZE, ORACLE_SPACES, PRIVILEGED_STATE_KEY, STATE_KEY
 from lerobot_obsbench.spaces import ObservationAdapter
 
@@ -32,7 +33,7 @@ class StateDenormalizer(nn.Module):
             span = torch.where(span == 0, torch.full_like(span, 1e-8), span)
             loc, scale = st["min"] + span / 2, span / 2
         elif st and mode is not NormalizationMode.IDENTITY:
-            raise NotImplementedError(f"state normalisation {mode} is not supported for the ee frame")
+            raise UnsupportedError(f"state normalisation {mode} is not supported for the ee frame")
         self.register_buffer("loc", loc.reshape(dim))
         self.register_buffer("scale", scale.reshape(dim))
 

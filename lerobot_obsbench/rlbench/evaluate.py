@@ -27,7 +27,7 @@ from lerobot_obsbench.outputs import write_json_atomic
 from lerobot_obsbench.policies.env_passthrough import frame_to_policy_batch
 from lerobot_obsbench.policies.loading import load_policy, predict_chunk
 from lerobot_obsbench.rlbench.format import camera_views, decode_action, encode_pose, low_dim
-from lerobot_obsbench.rlbench.paper_tasks import RLBenchTask
+from lerobot_obsbench.rlbench.paper_tasks import RLBenchTask, RLBenchTaskError
 from lerobot_obsbench.schema import (
     ENV_STATE_KEY,
     STATE_KEY,
@@ -91,7 +91,7 @@ class CameraView:
         from scipy.spatial.transform import Rotation
 
         if self.axis not in ("y", "z"):
-            raise ValueError(f"camera view axis must be y or z; got {self.axis!r}")
+            raise RLBenchTaskError(f"camera view axis must be y or z; got {self.axis!r}")
         turn = np.eye(4)
         turn[:3, :3] = Rotation.from_euler(self.axis, self.degrees, degrees=True).as_matrix()
         moved = turn @ matrix
@@ -245,7 +245,7 @@ def camera_view_for(perturbation: str) -> CameraView | None:
     if perturbation == "none":
         return None
     if perturbation not in CAMERA_VIEWS:
-        raise ValueError(
+        raise RLBenchTaskError(
             f"perturbation {perturbation!r} has no RLBench counterpart; RLBench grids take the paper's camera "
             f"views: {', '.join(CAMERA_VIEWS)}"
         )

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from lerobot_obsbench.errors import ObsBenchError
+from lerobot_obsbench.errors import MissingFileError, ObsBenchError
 
 DEPTH_SCALE = 2**24 - 1
 ACTION_SIZE = 11  # position (3, scaled by the task's bounds), 6-D rotation, gripper open, ignore collisions
@@ -147,7 +147,7 @@ def find_episodes(task_dir: Path) -> list[EpisodeRef]:
     """Every episode of one task folder, in either layout, ordered by variation then episode number."""
     task_dir = Path(task_dir)
     if not task_dir.is_dir():
-        raise FileNotFoundError(f"{task_dir} not found (expected <data>/<split>/<task>, e.g. data/train/open_drawer)")
+        raise MissingFileError(f"{task_dir} not found (expected <data>/<split>/<task>, e.g. data/train/open_drawer)")
     episodes = [
         EpisodeRef(path, None, path / "variation_descriptions.pkl")
         for _, path in _numbered(task_dir / "all_variations" / "episodes", EPISODE_PATTERN)

@@ -50,7 +50,7 @@ import numpy as np
 from lerobot.utils.constants import HF_LEROBOT_CALIBRATION
 from scipy.spatial.transform import Rotation
 
-from lerobot_obsbench.errors import ObsBenchError
+from lerobot_obsbench.errors import ConfigError, MissingFileError, ObsBenchError
 
 logger = logging.getLogger(__name__)
 # Where `obsbench calibrate-cameras` saves one JSON file per camera serial.
@@ -73,7 +73,7 @@ def charuco_corner_offset_px(opencv_version: str = cv2.__version__) -> float:
     1280x720): every world point then projects ~0.5 px off in that camera."""
     found = re.match(r"(\d+)\.(\d+)", opencv_version)
     if found is None:
-        raise ValueError(f"cannot read an OpenCV version from {opencv_version!r}")
+        raise ConfigError(f"cannot read an OpenCV version from {opencv_version!r}")
     return 0.5 if (4, 7) <= (int(found[1]), int(found[2])) < (4, 14) else 0.0
 
 
@@ -93,7 +93,7 @@ class BoardSpec:
 
     def board(self) -> cv2.aruco.CharucoBoard:
         if not hasattr(cv2.aruco, self.dictionary):
-            raise ValueError(f"Unknown ArUco dictionary {self.dictionary!r} (e.g. DICT_4X4_50).")
+            raise ConfigError(f"Unknown ArUco dictionary {self.dictionary!r} (e.g. DICT_4X4_50).")
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
         return cv2.aruco.CharucoBoard(
             (self.squares_x, self.squares_y), self.square_length, self.marker_length, dictionary
@@ -258,7 +258,7 @@ def load_extrinsics(serial_number: str, directory: Path | str | None = None) -> 
     """The saved calibration of a camera; FileNotFoundError naming the command that makes it."""
     path = extrinsics_path(serial_number, directory)
     if not path.is_file():
-        raise FileNotFoundError(
+        raise MissingFileError(
             f"No extrinsics for camera {serial_number} ({path}). Put the ChArUco board on the table and run "
             f"`obsbench calibrate-cameras --serial {serial_number}`"
             + (f" --out {directory}" if directory else "")
@@ -274,5 +274,5 @@ def load_extrinsics(serial_number: str, directory: Path | str | None = None) -> 
         data["world_origin"] = "board_outer_corner"
     result = CameraExtrinsics(**data)
     if np.asarray(result.cam2world).shape != (4, 4):
-        raise ValueError(f"{path}: cam2world must be a 4x4 matrix; recalibrate with `obsbench calibrate-cameras`.")
+        raise ConfigError(f"{path}: cam2world must be a 4x4 matrix; recalibrate with `obsbench calibrate-cameras`.")
     return result

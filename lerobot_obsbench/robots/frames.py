@@ -19,6 +19,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from lerobot_obsbench.errors import ConfigError
 from lerobot_obsbench.robots.scene_cameras import CAM2WORLD_SUFFIX, DEPTH_SUFFIX, INTRINSICS_SUFFIX
 from lerobot_obsbench.schema import (
     ACTION_KEY,
@@ -84,5 +85,5 @@ def action_values(action: Mapping, motors: list[str]) -> np.ndarray:
 def action_dict(values, motors: list[str]) -> dict[str, float]:
     values = np.asarray(values, dtype=np.float64).reshape(-1)
     if len(values) != len(motors):
-        raise ValueError(f"the policy outputs {len(values)} action values, the robot has {len(motors)} motors")
+        raise ConfigError(f"the policy outputs {len(values)} action values, the robot has {len(motors)} motors")
     return {m: float(v) for m, v in zip(motors, values, strict=True)}

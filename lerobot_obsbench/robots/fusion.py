@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from lerobot_obsbench.errors import MissingDependencyError, ObsBenchError
 from lerobot_obsbench.robots.extrinsics import CalibrationError
 
 INSTALL_HINT = "open3d is needed to refine and fuse cameras: pip install 'lerobot_policy_obsbench[realsense]'"
@@ -29,11 +30,15 @@ FINE_DISTANCE = 0.003  # metres: the last stage's largest point-to-point distanc
 NORMAL_RADIUS = 0.006  # metres, at least: the neighbourhood each normal is fitted to
 
 
+class PointCloudWriteError(ObsBenchError, OSError):
+    """Open3D could not write the fused point cloud (its writer picks the format from the file's suffix)."""
+
+
 def import_open3d():
     try:
         import open3d
     except ImportError as error:
-        raise ImportError(f"{INSTALL_HINT} ({error})") from error
+        raise MissingDependencyError(f"{INSTALL_HINT} ({error})") from error
     return open3d
 
 
@@ -146,5 +151,5 @@ def write_ply(path: str | Path, xyz: np.ndarray, rgb: np.ndarray) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     if not o3d.io.write_point_cloud(str(path), _cloud(o3d, xyz, rgb)):
-        raise OSError(f"Open3D could not write {path}; give a path ending in .ply")
+        raise PointCloudWriteError(f"Open3D could not write {path}; give a path ending in .ply")
     return path

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from lerobot_obsbench.errors import ConfigError
+
 
 @dataclass(frozen=True)
 class RealTask:
@@ -43,5 +45,5 @@ REAL_TASKS = {
 
 def real_task(name: str) -> RealTask:
     if name not in REAL_TASKS:
-        raise ValueError(f"Unknown real task {name!r}; choose one of {', '.join(REAL_TASKS)}.")
+        raise ConfigError(f"Unknown real task {name!r}; choose one of {', '.join(REAL_TASKS)}.")
     return REAL_TASKS[name]

@@ -20,7 +20,13 @@ from collections.abc import Callable
 
 import numpy as np
 
+from lerobot_obsbench.errors import ObsBenchError
+
 logger = logging.getLogger(__name__)
+
+
+class AsyncInferenceError(ObsBenchError, RuntimeError):
+    """The background thread computing action chunks failed; the message carries its error."""
 
 
 class StepTimer:
@@ -124,7 +130,7 @@ class AsyncChunks:
 
     def _raise_worker_error(self) -> None:
         if self._error is not None:
-            raise RuntimeError(f"asynchronous inference failed: {self._error!r}") from self._error
+            raise AsyncInferenceError(f"asynchronous inference failed: {self._error!r}") from self._error
 
     def close(self) -> None:
         with self._lock:

@@ -15,6 +15,7 @@ import numpy as np
 from lerobot.cameras import Camera, CameraConfig
 from lerobot.cameras.utils import make_cameras_from_configs
 
+from lerobot_obsbench.errors import ConfigError
 from lerobot_obsbench.robots.extrinsics import load_extrinsics
 
 DEPTH_SUFFIX = ".depth"
@@ -39,7 +40,7 @@ def camera_features(configs: dict[str, CameraConfig]) -> dict[str, tuple]:
         elif getattr(cfg, "use_depth", False):
             # LeRobot 0.6's own depth (`<cam>_depth`: unregistered, no K or pose) beside the schema's would be two
             # sources of depth for one camera
-            raise ValueError(
+            raise ConfigError(
                 f"camera {name!r}: {cfg.type} with use_depth=true records LeRobot's own unregistered depth; in the "
                 "plugin's robots use type obsbench_realsense_rgbd (depth registered into colour, K and cam2world), or "
                 "record with LeRobot's koch_follower and `obsbench attach-calibration` afterwards"

@@ -20,6 +20,7 @@ from dataclasses import field, make_dataclass
 from lerobot.configs.policies import PreTrainedConfig
 
 from lerobot_obsbench.encoders import default_encoder
+from lerobot_obsbench.errors import ConfigError
 from lerobot_obsbench.policies.obs_act.configuration_obs_act import ObsACTConfig
 from lerobot_obsbench.policies.obs_diffusion.configuration_obs_diffusion import ObsDiffusionConfig
 
@@ -51,7 +52,7 @@ def class_name(type_name: str) -> str:
 def _post_init(self) -> None:
     base_type, space, _ = NAMED_POLICIES[self.type]
     if self.obs_space != space:
-        raise ValueError(
+        raise ConfigError(
             f"--policy.type={self.type} is {base_type} on obs_space={space!r}; got --policy.obs_space="
             f"{self.obs_space!r}. Use the named type of that space, or --policy.type={base_type}."
         )

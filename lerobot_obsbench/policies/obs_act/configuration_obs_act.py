@@ -17,7 +17,7 @@ ACTION_LOSSES = ("l1", "mse")
 @PreTrainedConfig.register_subclass("obs_act")
 @dataclass
 class ObsACTConfig(ObservationConfig, ACTConfig):
-    """ACT (LeRobot 0.4.4) whose observation encoder is chosen by `obs_space` / `encoder`.
+    """LeRobot's ACT whose observation encoder is chosen by `obs_space` / `encoder`.
 
     Defaults are the paper's (its Appendix C); see `lerobot_obsbench.presets` for the small CPU preset.
     """

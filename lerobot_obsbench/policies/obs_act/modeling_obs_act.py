@@ -22,9 +22,9 @@ ENCODER_PREFIX = "model.observation.encoder."
 class WeightlessAttention(nn.MultiheadAttention):
     """nn.MultiheadAttention that, at inference, does not compute the head-averaged attention weights LeRobot's
     ACT layers ask for and throw away (`[0]`): PyTorch then runs its fused attention kernel instead of
-    materialising a tokens x tokens matrix per head. The same outputs (to float rounding) and parameters; 2.2x
-    faster per layer at 2,050 point tokens on the CPU (benchmarks/bench_latency.py). Training keeps the stock
-    path, so training runs are unchanged."""
+    materialising a tokens x tokens matrix per head, which dominates inference on long point-token sequences
+    (docs/performance.md#measured-design-choices). The same outputs (to float rounding) and parameters; training
+    keeps the stock path, so training runs are unchanged."""
 
     def forward(self, *args, **kwargs):
         if not self.training:

@@ -8,6 +8,7 @@ from typing import ClassVar
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
 
+from lerobot_obsbench.errors import ConfigError
 from lerobot_obsbench.policies.observation_config import ENCODER_FIELDS, ObservationConfig
 from lerobot_obsbench.schema import check_choice
 
@@ -84,7 +85,7 @@ class ObsDiffusionConfig(ObservationConfig, DiffusionConfig):
         check_choice("denoiser", self.denoiser, DENOISERS)
         check_choice("dp_point_head", self.dp_point_head, DP_POINT_HEADS)
         if self.denoiser == "transformer" and self.transformer_dim % self.transformer_heads:
-            raise ValueError(
+            raise ConfigError(
                 f"transformer_dim ({self.transformer_dim}) must be divisible by transformer_heads "
                 f"({self.transformer_heads})"
             )

@@ -18,6 +18,7 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 from torch import Tensor, nn
 
+from lerobot_obsbench.errors import ConfigError
 from lerobot_obsbench.policies.env_passthrough import EnvObservationMixin
 from lerobot_obsbench.policies.model_card import ModelCardMixin
 from lerobot_obsbench.policies.obs_diffusion.configuration_obs_diffusion import ObsDiffusionConfig
@@ -117,7 +118,7 @@ class ObsDiffusionModel(DiffusionModel):
         if generators is None or noise is not None:
             return super().conditional_sample(batch_size, global_cond, generator, noise)
         if len(generators) != batch_size:
-            raise ValueError(f"{len(generators)} episode generators for a batch of {batch_size}")
+            raise ConfigError(f"{len(generators)} episode generators for a batch of {batch_size}")
         shape = (1, self.config.horizon, self.config.action_feature.shape[0])
         dtype, device = global_cond.dtype, global_cond.device
         noise = torch.cat([torch.randn(shape, dtype=dtype, device=device, generator=g) for g in generators])

@@ -6,6 +6,8 @@ from dataclasses import dataclass, field
 
 from lerobot.cameras.configs import CameraConfig
 
+from lerobot_obsbench.errors import ConfigError
+
 # librealsense post-processing filters the camera can apply to the depth before registering it, in the order given.
 DEPTH_FILTERS = ("spatial", "temporal", "hole_filling")
 # Hardware synchronisation between cameras: librealsense's `inter_cam_sync_mode` values (D400 series).
@@ -46,22 +48,22 @@ class RealSenseRGBDCameraConfig(CameraConfig):
 
     def __post_init__(self) -> None:
         if not self.serial_number and not self.playback_file:
-            raise ValueError(
+            raise ConfigError(
                 "obsbench_realsense_rgbd: set serial_number (run `obsbench find-cameras` to list the connected "
                 "cameras' serials) or playback_file (a recorded .bag)."
             )
         if None in (self.fps, self.width, self.height):
-            raise ValueError("obsbench_realsense_rgbd: fps, width and height must all be set (e.g. 30, 640, 480).")
+            raise ConfigError("obsbench_realsense_rgbd: fps, width and height must all be set (e.g. 30, 640, 480).")
         if self.downsample < 1 or self.width % self.downsample or self.height % self.downsample:
-            raise ValueError(
+            raise ConfigError(
                 f"obsbench_realsense_rgbd: downsample={self.downsample} must be a positive divisor of width "
                 f"{self.width} and height {self.height}."
             )
         unknown = [f for f in self.depth_filters if f not in DEPTH_FILTERS]
         if unknown:
-            raise ValueError(f"obsbench_realsense_rgbd: unknown depth_filters {unknown}; choose from {DEPTH_FILTERS}.")
+            raise ConfigError(f"obsbench_realsense_rgbd: unknown depth_filters {unknown}; choose from {DEPTH_FILTERS}.")
         if self.sync_mode not in SYNC_MODES:
-            raise ValueError(
+            raise ConfigError(
                 f"obsbench_realsense_rgbd: sync_mode {self.sync_mode!r}; choose one of {list(SYNC_MODES)}."
             )
 

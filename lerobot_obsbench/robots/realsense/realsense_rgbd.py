@@ -10,10 +10,9 @@ K is the colour stream's pinhole intrinsics (scaled with `downsample`).
 
 Why not librealsense's `rs.align`: it writes each depth pixel's own z (the depth camera's) into the colour pixels it
 covers, which is the colour camera's z only when the depth -> colour extrinsic is a pure x-baseline. With a
-D400's real extrinsic (a fraction of a degree of rotation, millimetres of offset) it is off by millimetres:
-measured on a slanted table scene with a 0.5 / -1 / 0.3 degree rotation and a 15 / 1 / 2 mm offset, 16% of its
-pixels are within 1 mm of the colour-frame depth (median 3.6 mm); correcting its z for the rotation still leaves
-6% beyond 1 mm (its nearest-pixel splat); the registration here puts 99.97% within 1 mm (tests/test_realsense.py).
+D400's real extrinsic (a fraction of a degree of rotation, millimetres of offset) it is off by millimetres on a
+slanted surface, and its nearest-pixel splat stays off even with its z corrected for the rotation; the
+registration here is within 1 mm (docs/real-robot.md, asserted by tests/test_realsense.py).
 
 Needs `pyrealsense2` (`pip install 'lerobot_policy_obsbench[realsense]'`; on Linux also Debian's `libusb-1.0-0`).
 """
@@ -32,7 +31,7 @@ import torch
 from lerobot.cameras.camera import Camera
 from lerobot.utils.decorators import check_if_already_connected, check_if_not_connected
 
-from lerobot_obsbench.errors import ObsBenchError
+from lerobot_obsbench.errors import ConfigError, MissingDependencyError, ObsBenchError
 from lerobot_obsbench.geometry import register_depth
 from lerobot_obsbench.robots.realsense.config_realsense_rgbd import SYNC_MODES, RealSenseRGBDCameraConfig
 
@@ -48,7 +47,7 @@ def import_realsense():
     try:
         import pyrealsense2 as rs
     except ImportError as error:
-        raise ImportError(f"{INSTALL_HINT} ({error})") from error
+        raise MissingDependencyError(f"{INSTALL_HINT} ({error})") from error
     return rs
 
 
@@ -97,13 +96,25 @@ def extrinsic_matrix(extrinsics) -> np.ndarray:
     return matrix
 
 
-# Fixed-point refinement steps of the registration: one brings a slanted surface within 0.01 mm (the splat's start
-# is within half a pixel's footprint); more cost ~25% each and change nothing measurable
+# Fixed-point refinement steps of the registration: the splat starts within half a pixel's footprint, so one step
+# converges on the surfaces a table scene holds (docs/real-robot.md)
 REGISTRATION_STEPS = 1
 
 
 class CameraNotFoundError(ObsBenchError, ConnectionError):
     """The camera named by serial number, or the recording named by path, is not there."""
+
+
+class CameraStartError(ObsBenchError, ConnectionError):
+    """The camera is there but would not stream as configured (resolution, rate, hardware sync)."""
+
+
+class CameraTimeoutError(ObsBenchError, TimeoutError):
+    """No frame, or no fresh enough frame, arrived in time."""
+
+
+class CameraReadError(ObsBenchError, RuntimeError):
+    """A frame was asked for before the camera delivered one, or after its reader thread failed."""
 
 
 class RealSenseRGBDCamera(Camera):
@@ -193,7 +204,7 @@ class RealSenseRGBDCamera(Camera):
                 started.append(sensor)
         except RuntimeError as error:
             self._stop_sensors(started)
-            raise ConnectionError(f"{self}: could not start colour + depth ({error}).") from error
+            raise CameraStartError(f"{self}: could not start colour + depth ({error}).") from error
         self._sensors = started
         self._playback = playback if cfg.playback_file else None
         self._consumed.set()
@@ -222,7 +233,7 @@ class RealSenseRGBDCamera(Camera):
                 if (video.width(), video.height(), stream.fps()) == (cfg.width, cfg.height, cfg.fps):
                     return sensor, stream
                 offered.append(f"{video.width()}x{video.height()}@{stream.fps()}")
-        raise ConnectionError(
+        raise CameraStartError(
             f"{self}: no {kind} stream at {cfg.width}x{cfg.height} @ {cfg.fps} fps in {fmt}; the camera offers "
             f"{', '.join(sorted(set(offered))) or 'none'}. Pick one of those (D415/D435: 640x480 or 1280x720 at "
             "30 fps)."
@@ -235,13 +246,13 @@ class RealSenseRGBDCamera(Camera):
         self.depth_scale = float(depth_sensor.get_depth_scale())
         if not cfg.playback_file and cfg.sync_mode != "off":
             if not depth_sensor.supports(rs.option.inter_cam_sync_mode):
-                raise ConnectionError(f"{self} does not support hardware sync; set sync_mode: off.")
+                raise CameraStartError(f"{self} does not support hardware sync; set sync_mode: off.")
             depth_sensor.set_option(rs.option.inter_cam_sync_mode, SYNC_MODES[cfg.sync_mode])
         colour_profile, depth_profile = colour[1].as_video_stream_profile(), depth[1].as_video_stream_profile()
         intrinsics = colour_profile.get_intrinsics()
         worst = max((abs(c) for c in intrinsics.coeffs), default=0.0)
         if worst > cfg.max_distortion:
-            raise ValueError(
+            raise ConfigError(
                 f"{self}: the colour stream's lens distortion ({intrinsics.model}, coefficients "
                 f"{[round(c, 4) for c in intrinsics.coeffs]}) exceeds max_distortion={cfg.max_distortion}; the "
                 "dataset schema stores a pinhole K. Use a camera/mode with rectified colour, or raise "
@@ -280,8 +291,8 @@ class RealSenseRGBDCamera(Camera):
 
     def _read_loop(self) -> None:
         # one intra-op thread for this reader's registration (OpenMP's setting is per thread: the control loop and
-        # the policy keep theirs): each camera's reader taking every core oversubscribes the CPU (two 640x480
-        # cameras on 2 cores, benchmarks/bench_recording.py: 17.7 -> 11.9 ms a frameset, step p99 19-38 -> 5 ms)
+        # the policy keep theirs): each camera's reader taking every core oversubscribes the CPU
+        # (benchmarks/bench_recording.py measures it)
         torch.set_num_threads(1)
         try:
             for colour_frame, depth_frame in self._framesets():
@@ -328,12 +339,12 @@ class RealSenseRGBDCamera(Camera):
     def _take(self, timeout_ms: float, wait: bool) -> tuple[np.ndarray, np.ndarray, int, float]:
         """The newest frameset; `wait`: block for an unread one and mark it read (a peek otherwise)."""
         if wait and not self._new_frame.wait(timeout_ms / 1000):
-            raise TimeoutError(f"{self}: no new frame within {timeout_ms} ms.")
+            raise CameraTimeoutError(f"{self}: no new frame within {timeout_ms} ms.")
         if self._error is not None:
-            raise RuntimeError(f"{self}: the reader thread failed: {self._error!r}") from self._error
+            raise CameraReadError(f"{self}: the reader thread failed: {self._error!r}") from self._error
         with self._lock:
             if self._latest is None:
-                raise RuntimeError(f"{self} has not captured a frame yet.")
+                raise CameraReadError(f"{self} has not captured a frame yet.")
             if wait:
                 self._mark_read()
             return self._latest
@@ -361,7 +372,7 @@ class RealSenseRGBDCamera(Camera):
         colour, depth, _, arrived = self._take(0, wait=False)
         age_ms = (time.perf_counter() - arrived) * 1000
         if age_ms > max_age_ms:
-            raise TimeoutError(f"{self}: the newest frameset is {age_ms:.0f} ms old (max_age_ms={max_age_ms}).")
+            raise CameraTimeoutError(f"{self}: the newest frameset is {age_ms:.0f} ms old (max_age_ms={max_age_ms}).")
         return colour, depth
 
     def read(self) -> np.ndarray:
