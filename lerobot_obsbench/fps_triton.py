@@ -1,11 +1,11 @@
 """Farthest point sampling as one Triton kernel launch (CUDA), for `geometry.farthest_point_sample`.
 
 The batched loop of tensor operations in `geometry` launches ~9 kernels per sampled point: on a GPU, 2,048 seeds
-of a batch of 16 clouds cost ~18,000 launches and made a point-cloud training step of the paper preset ~8x
-slower than an RGB/ResNet-50 one (benchmarks/results/train_step_cuda_paper.json). Here one program per cloud
-keeps the whole selection loop on the GPU, like the reference CUDA FPS kernel of PointNet++; no package on PyPI
-ships a GPU FPS for current PyTorch (pytorch3d and torch-cluster publish source or other indexes only), and
-Triton comes with PyTorch's CUDA wheels.
+of a batch of 16 clouds cost tens of thousands of launches, which made the paper preset's point-cloud training
+step many times slower than an RGB/ResNet-50 one (benchmarks/results/train_step_cuda_paper.json). Here one
+program per cloud keeps the whole selection loop on the GPU, like the reference CUDA FPS kernel of PointNet++;
+no package on PyPI ships a GPU FPS for current PyTorch (pytorch3d and torch-cluster publish source or other
+indexes only), and Triton comes with PyTorch's CUDA wheels.
 
 Semantics are those of the tensor loop: start from `start[b]`, an invalid point is never picked while a valid
 one remains, ties go to the lowest index. Runs on CPU tensors under `TRITON_INTERPRET=1` (how the tests check it

@@ -318,10 +318,10 @@ def _fps_fpsample(xyz: Tensor, mask: Tensor, k: int, start: str = "first") -> Te
     """Per-cloud exact FPS with `fpsample`'s C++ kernels, every seed the point farthest from the seeds before it.
 
     `start="first"` runs the per-point loop from each cloud's first valid point. `start="any"` runs QuickFPS
-    (`bucket_fps_kdline_sampling`) on clouds of QUICK_FPS_MIN_POINTS or more, 3-7x faster at 2-10k points
-    (batches of 8, 512 or 2,048 seeds): the same rule, but fpsample 1.0 reads the start index in its KD-tree's
-    order (and none of its tree variants takes a start in the cloud's order), so the first seed is the point its
-    tree lists first, and the seeds differ from the GPU paths'.
+    (`bucket_fps_kdline_sampling`) on clouds of QUICK_FPS_MIN_POINTS or more, several times faster on the
+    clouds the benchmark samples (docs/performance.md#measured-design-choices): the same rule, but fpsample 1.0
+    reads the start index in its KD-tree's order (and none of its tree variants takes a start in the cloud's
+    order), so the first seed is the point its tree lists first, and the seeds differ from the GPU paths'.
     """
     xyz_np = xyz.detach().cpu().numpy()
     mask_np = mask.cpu().numpy()
@@ -342,7 +342,7 @@ def _fps_fpsample(xyz: Tensor, mask: Tensor, k: int, start: str = "first") -> Te
 
 def quick_fps_height(n_points: int) -> int:
     """QuickFPS tree height (buckets of 2**h points): fpsample's advice, 5 for medium clouds and 7 for large
-    ones, which measured fastest here too (benchmarks/bench_latency.py)."""
+    ones, which is also the fastest on this package's clouds (docs/performance.md#measured-design-choices)."""
     return 5 if n_points < 16384 else 7
 
 
@@ -372,8 +372,9 @@ def farthest_point_sample(xyz: Tensor, mask: Tensor, k: int, start: str = "first
 
 
 def _knn_kdtree(query: Tensor, points: Tensor, mask: Tensor, k: int) -> Tensor:
-    """Per-cloud kNN with scipy's KD-tree (≈10x faster than a dense distance matrix on CPU), queries spread over
-    every core (an exact search: the result does not depend on the number of workers)."""
+    """Per-cloud kNN with scipy's KD-tree (on the CPU, far faster than a dense distance matrix:
+    docs/performance.md#measured-design-choices), queries spread over every core (an exact search: the result
+    does not depend on the number of workers)."""
     query_np, points_np, mask_np = query.detach().numpy(), points.detach().numpy(), mask.numpy()
     out = np.zeros(query.shape[:2] + (k,), dtype=np.int64)
     for i in range(query.shape[0]):

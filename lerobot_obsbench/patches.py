@@ -2,20 +2,18 @@
 
 1. Array columns through Python lists. LeRobot's `DatasetReader` formats its `datasets.Dataset` with
    `set_transform(hf_transform_to_torch)`: every read first turns the Arrow rows into Python lists, then
-   `torch.tensor(list)`. A 128² depth frame is 16k nested Python ints: ~30 ms per row, and an ACT chunk query
-   (`_query_hf_dataset`) formats every column of its 100 rows, depth included: seconds per sample (measured in
-   `benchmarks/bench_loading.py`). `LeRobotTorchFormatter` produces the same output — tensors per row, lists of
-   tensors per batch / column, PIL images through LeRobot's own `pil_to_chw_tensor`, same dtypes, language
-   columns untouched — from NumPy extraction instead, and `query_hf_dataset_by_column` reads only the queried
-   column. Drop both once LeRobot fixes this upstream.
+   `torch.tensor(list)`. A depth frame is thousands of nested Python ints, and an ACT chunk query
+   (`_query_hf_dataset`) formats every column of its 100 rows, depth included, so loading dominates training
+   (`benchmarks/bench_loading.py` measures it). `LeRobotTorchFormatter` produces the same output — tensors per
+   row, lists of tensors per batch / column, PIL images through LeRobot's own `pil_to_chw_tensor`, same dtypes,
+   language columns untouched — from NumPy extraction instead, and `query_hf_dataset_by_column` reads only the
+   queried column. Drop both once LeRobot fixes this upstream.
 2. Aggregating datasets with array features (`array_safe_aggregation()`, used only around the plugin's own
    calls of `aggregate_datasets`): LeRobot copies data files through pandas unless the dataset has images, and
    pandas cannot write HF `Array3D` columns (depth) back to parquet. Inside the context the data files take
    LeRobot's own image path (read and written through `datasets`), which keeps those columns' types. (Callers
    pass `concatenate_data=False`: appending to an existing data file still concatenates data frames, which
    pandas cannot do with those columns either.)
-
-(LeRobot 0.4.4 also needed a torchcodec → pyav fallback; 0.6.1's `get_safe_default_video_backend` has it.)
 
 Fix 1 replaces LeRobot methods for every process that imports the plugin (LeRobot's plugin discovery imports it
 into every `lerobot-*` command), so `apply()` patches only the LeRobot version it was written and tested for
