@@ -12,15 +12,17 @@ selection VALIDATION_SEEDS). The three ranges never overlap, so no evaluation ep
 
 from __future__ import annotations
 
+import math
 from typing import ClassVar
 
 import numpy as np
 
-from lerobot_obsbench.errors import ObsBenchError
+from lerobot_obsbench.errors import ObsBenchError, UnsupportedError
 
 EVAL_SEED_START = 0  # evaluation: seeds 0 .. 9_999 (the paper uses 400 episodes per task)
 VALIDATION_SEED_START = 10_000  # checkpoint selection: 10_000 .. 19_999
 DEMO_SEED_START = 100_000  # demonstrations: 100_000 and up
+CUBE_HALF_SIZE = 0.02  # metres: ManiSkill's cubes (PushCube, PullCube, PickCube, StackCube)
 
 
 SPLITS = {
@@ -33,15 +35,25 @@ def eval_seeds(n: int, split: str = "test") -> list[int]:
     """The documented held-out seeds: test 0, 1, ..., n-1; validation (checkpoint selection) 10000, ...,
     10000 + n - 1. Neither overlaps the other or the demonstrations' seeds."""
     if split not in SPLITS:
-        raise ValueError(f"Unknown seed split {split!r}; choose one of {', '.join(SPLITS)}")
+        raise TaskError(f"Unknown seed split {split!r}; choose one of {', '.join(SPLITS)}")
     start, stop = SPLITS[split]
     if not 0 < n <= stop - start:
-        raise ValueError(f"episodes must be in 1..{stop - start}; got {n}")
+        raise TaskError(f"episodes must be in 1..{stop - start}; got {n}")
     return list(range(start, start + n))
 
 
 class TaskError(ObsBenchError, ValueError):
-    """Unknown task, or a task whose assets are missing."""
+    """Unknown task, a task whose assets are missing, or a task declared wrongly."""
+
+
+class MilestoneError(TaskError, KeyError):
+    """A milestone the task does not define (a KeyError, as a missing key is)."""
+
+
+def bounding_radius(*half_sizes: float) -> float:
+    """Radius of the sphere around a box of these half sizes (metres), rounded up to the millimetre: a crop box or
+    a camera check that holds the sphere holds the box in any rotation."""
+    return math.ceil(math.hypot(*half_sizes) * 1000) / 1000
 
 
 def to_numpy(x) -> np.ndarray:
@@ -114,11 +126,11 @@ class Task:
         ManiSkill env, `info` its batched step info, `success` its (num_envs,) success)."""
         if name == "grasp":
             return ms_env.agent.is_grasping(getattr(ms_env, self.grasped)).reshape(-1).bool()
-        raise KeyError(f"{self.name} has no rule for milestone {name!r}")
+        raise MilestoneError(f"{self.name} has no rule for milestone {name!r}")
 
     def make_expert(self, env):
         if self.expert is None:
-            raise NotImplementedError(
+            raise UnsupportedError(
                 f"No scripted expert for {self.name} yet (experts: "
                 f"{', '.join(n for n, t in TASKS.items() if t.expert)}). "
                 "Convert official ManiSkill demonstrations instead: obsbench import-h5 --h5 FILE.h5 --out DIR "
@@ -133,16 +145,14 @@ TASKS: dict[str, Task] = {}
 def register_task(cls: type[Task]) -> type[Task]:
     """Class decorator adding a task to TASKS (a name registered twice is an error)."""
     if cls.name in TASKS:
-        raise ValueError(
-            f"task {cls.name!r} is registered twice ({type(TASKS[cls.name]).__module__}, {cls.__module__})"
-        )
+        raise TaskError(f"task {cls.name!r} is registered twice ({type(TASKS[cls.name]).__module__}, {cls.__module__})")
     unknown = [name for name in cls.objects if name not in cls.privileged_actors]
     if unknown:
-        raise ValueError(f"task {cls.name!r}: objects {unknown} are not among its privileged_actors")
+        raise TaskError(f"task {cls.name!r}: objects {unknown} are not among its privileged_actors")
     if cls.sub_success and "grasp" in cls.sub_success and cls.grasped is None:
-        raise ValueError(f"task {cls.name!r} reports a grasp milestone but names no grasped object")
+        raise TaskError(f"task {cls.name!r} reports a grasp milestone but names no grasped object")
     if not 0 < cls.expert_success_rate <= 1:
-        raise ValueError(f"task {cls.name!r}: expert_success_rate must be in (0, 1]; got {cls.expert_success_rate}")
+        raise TaskError(f"task {cls.name!r}: expert_success_rate must be in (0, 1]; got {cls.expert_success_rate}")
     TASKS[cls.name] = cls()
     return cls
 

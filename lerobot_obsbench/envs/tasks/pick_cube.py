@@ -8,8 +8,8 @@ xy in [-0.1, 0.1]^2 and its height 0..0.3 m above the cube's.
 
 **Success Conditions:** the cube within 2.5 cm of the goal while the robot is static.
 
-**Expert:** top-down grasp aligned with the cube's faces, carry to the goal, hold still. 20/20 over seeds
-100000.. (mean 26.6 steps; `obsbench demos --task PickCube-v1 --episodes 20`).
+**Expert:** top-down grasp aligned with the cube's faces, carry to the goal, hold still.
+Its success rate: docs/simulation.md#tasks.
 
 **OBSBench's camera and crop box:** ManiSkill's camera shows the cube as ~6 pixels of a 64² frame; the task camera
 looks at the spawn square from closer, and point clouds are cropped to the square and the air above it up to the
@@ -19,7 +19,7 @@ tests/test_task_cameras.py checks the start of every episode).
 
 from __future__ import annotations
 
-from lerobot_obsbench.envs.base_task import Task, first, register_task
+from lerobot_obsbench.envs.base_task import CUBE_HALF_SIZE, Task, bounding_radius, first, register_task
 from lerobot_obsbench.envs.experts import CLOSED, OPEN, Phase, WaypointExpert, above
 
 
@@ -44,7 +44,7 @@ class PickCube(Task):
     description = "pick up the red cube and move it to the goal"
     goal = {"goal_pos": 3}
     privileged_actors = ("cube", "goal_site")
-    objects = {"cube": 0.035}  # 2 cm half-size cube
+    objects = {"cube": bounding_radius(CUBE_HALF_SIZE, CUBE_HALF_SIZE, CUBE_HALF_SIZE)}
     expert = PickCubeExpert
     # closer to the spawn square than ManiSkill's camera, with a narrower field of view
     camera = ((0.35, 0.0, 0.45), (0.0, 0.0, 0.05), 0.9)

@@ -7,8 +7,8 @@
 **Success Conditions:** the charger inserted into the receptacle. Sub-success: `grasp` (the charger was held).
 
 **Expert:** grasp the charger's base, lift, line the prongs up 2 cm short of the socket, push them home,
-closing the loop on the charger's pose in the gripper. 2/8 over seeds 100000.. (mean 160 steps): slow and
-weak; prefer `obsbench import-h5` of official demonstrations.
+closing the loop on the charger's pose in the gripper. Slow and weak (docs/simulation.md#tasks): prefer
+`obsbench import-h5` of official demonstrations.
 """
 
 from __future__ import annotations
@@ -37,6 +37,6 @@ class PlugCharger(Task):
     grasped = CHARGER
     sub_success = ("grasp",)
     expert = PlugChargerExpert
-    expert_success_rate = 0.25
+    expert_success_rate = 0.25  # as measured: docs/simulation.md#tasks
     privileged_actors = (CHARGER, "receptacle")
     camera_names = ("base_camera", "hand_camera")  # ManiSkill runs it with the wrist-camera Panda

@@ -7,13 +7,13 @@ the cube, so the policy finds both by seeing the cube (there is no goal observat
 
 **Success Conditions:** the cube's xy within 0.1 m of the target's centre, still on the table.
 
-**Expert:** get behind the cube with the gripper closed and low, then push along +x to the target. 20/20 over
-seeds 100000.. (mean 12.3 steps).
+**Expert:** get behind the cube with the gripper closed and low, then push along +x to the target. Its
+success rate: docs/simulation.md#tasks.
 
 PushCubeWide-v1 (an OBSBench variant, the main job's task): the same task with the cube's y drawn from
 [-0.2, 0.2] instead of [-0.1, 0.1] (x unchanged; the target still 0.2 m in +x of the cube). A policy that does
 not see the cube pushes where it usually is and misses more often, so seeing policies separate from blind ones.
-The same expert solves it: 20/20 over seeds 100000.. (`obsbench demos --task PushCubeWide-v1 --episodes 20`).
+The same expert solves it.
 Its camera looks down at the table region the cube and target can occupy (ManiSkill's looks at the robot from
 0.6 m with a 90° field of view, where the cube spans ~2 pixels of a 64² frame), and point clouds are cropped to
 the 10 cm above that region, as DP3's code crops to the task's workspace: at the episode's start the cloud is the
@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lerobot_obsbench.envs.base_task import Task, first, register_task, to_numpy
+from lerobot_obsbench.envs.base_task import CUBE_HALF_SIZE, Task, bounding_radius, first, register_task, to_numpy
 from lerobot_obsbench.envs.experts import CLOSED, Phase, WaypointExpert, above
 
 
@@ -54,7 +54,7 @@ class PushCube(Task):
     description = "push the cube into the goal region"
     expert = PushCubeExpert
     privileged_actors = ("obj", "goal_region")
-    objects = {"obj": 0.035}  # 2 cm half-size cube
+    objects = {"obj": bounding_radius(CUBE_HALF_SIZE, CUBE_HALF_SIZE, CUBE_HALF_SIZE)}
 
 
 @register_task

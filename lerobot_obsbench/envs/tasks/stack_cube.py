@@ -8,7 +8,7 @@
 Sub-success: `grasp` (the red cube was held at some step).
 
 **Expert:** top-down grasp of the red cube, lift 10 cm, move above the green cube, lower, release, retreat.
-19/20 over seeds 100000.. (mean 34.5 steps); 210 of 234 for the cpu-suite grid.
+Its success rate: docs/simulation.md#tasks.
 
 **OBSBench's camera and crop box:** ManiSkill's camera (0.6 m away, 90° field of view) shows a cube as ~6 pixels of
 a 64² frame and loses it behind the hand in some episodes; the task camera looks down from the +x, +y side at
@@ -17,7 +17,7 @@ the cubes' spawn region, and point clouds are cropped to that region (tests/test
 
 from __future__ import annotations
 
-from lerobot_obsbench.envs.base_task import Task, first, register_task
+from lerobot_obsbench.envs.base_task import CUBE_HALF_SIZE, Task, bounding_radius, first, register_task
 from lerobot_obsbench.envs.experts import CLOSED, OPEN, Phase, WaypointExpert, above
 
 
@@ -47,10 +47,10 @@ class StackCube(Task):
     grasped = "cubeA"
     privileged_actors = ("cubeA", "cubeB")
     camera_names = ("base_camera", "hand_camera")  # ManiSkill runs it with the wrist-camera Panda
-    objects = {"cubeA": 0.035, "cubeB": 0.035}  # 2 cm half-size cubes
+    objects = dict.fromkeys(("cubeA", "cubeB"), bounding_radius(CUBE_HALF_SIZE, CUBE_HALF_SIZE, CUBE_HALF_SIZE))
     sub_success = ("grasp",)
     expert = StackCubeExpert
-    expert_success_rate = 0.9
+    expert_success_rate = 0.9  # as measured: docs/simulation.md#tasks
     # looking down at the table from the +x, +y side, so the hand (above x = 0) hides no cube at the start
     camera = ((0.45, 0.25, 0.55), (0.0, 0.0, 0.0), 0.9)
     # both cubes' spawn region (x in [-0.2, 0.2], y in [-0.3, 0.3]) plus a cube's bounding radius, from 5 mm above
