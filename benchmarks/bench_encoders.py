@@ -21,7 +21,7 @@ import torch
 from benchmarks.bench_preprocess import CAM, WORKSPACE, cluttered_frames, sensor_batch
 from benchmarks.common import load_synthetic, timed, write
 from lerobot_obsbench.encoders import encoder_info, make_encoder
-from lerobot_obsbench.spaces import ObservationAdapter
+from lerobot_obsbench.spaces import AdapterConfig, ObservationAdapter
 
 PAIRS = [
     ("resnet18", "rgb"),
@@ -42,7 +42,7 @@ def peak_mb(device: str) -> float:
 def measure(name: str, space: str, batch: int, size: int, device: str, repeats: int, num_tokens: int) -> dict:
     """Runs in its own process, so each encoder's memory peak is its own."""
     frames = sensor_batch(cluttered_frames(load_synthetic(), batch, size), device)
-    adapter = ObservationAdapter(space, [CAM], workspace=WORKSPACE).to(device).train()
+    adapter = ObservationAdapter(AdapterConfig(space, [CAM], workspace=WORKSPACE)).to(device).train()
     options = {"num_tokens": num_tokens, "knn": 16, "image_size": size}
     options = {k: v for k, v in options.items() if k in encoder_info(name).options}
     encoder = make_encoder(name, space, output="tokens", dim=512, **options).to(device).train()

@@ -21,7 +21,7 @@ from scipy.spatial import cKDTree
 
 from benchmarks.common import load_synthetic, timed, write
 from lerobot_obsbench import geometry
-from lerobot_obsbench.spaces import ObservationAdapter
+from lerobot_obsbench.spaces import AdapterConfig, ObservationAdapter
 
 CAM = "base_camera"
 WORKSPACE = (-0.6, 0.6, -0.6, 0.6, 0.005, 0.8)
@@ -104,7 +104,7 @@ def fps_paths(batch: dict, n_seeds: int = 2048) -> dict:
     device's own path against the batched tensor loop (the path of devices without one), side by side, and the
     coverage radius of each sample."""
     with_table = (*WORKSPACE[:4], -0.05, WORKSPACE[5])
-    raw = ObservationAdapter("pointcloud", [CAM], workspace=with_table, voxel_size=1e-4).eval()
+    raw = ObservationAdapter(AdapterConfig("pointcloud", [CAM], workspace=with_table, voxel_size=1e-4)).eval()
     with torch.no_grad():
         cloud = raw.to(batch[f"observation.depth.{CAM}"].device)(batch)
     quick = functools.partial(geometry._fps_fpsample, start="any")
@@ -137,7 +137,8 @@ def measure(device: torch.device, batch_size: int, size: int, reference_frames: 
     `reference_frames` of them and NumPy + fpsample + scipy on all, and FPS alone (`fps_paths`)."""
     frames = cluttered_frames(load_synthetic(), batch_size, size)
     batch = sensor_batch(frames, device)
-    adapter = ObservationAdapter("pointcloud", [CAM], workspace=WORKSPACE, voxel_size=0.005).eval().to(device)
+    config = AdapterConfig("pointcloud", [CAM], workspace=WORKSPACE, voxel_size=0.005)
+    adapter = ObservationAdapter(config).eval().to(device)
 
     def run_plugin():
         with torch.no_grad():

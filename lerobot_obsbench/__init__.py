@@ -20,10 +20,11 @@ if patches.apply():
 
 from lerobot_obsbench import encoders, envs, policies, robots  # (registration side effects)
 from lerobot_obsbench.encoders import available_encoders, make_encoder
-from lerobot_obsbench.spaces import ObservationAdapter
+from lerobot_obsbench.spaces import AdapterConfig, ObservationAdapter
 
 __version__ = version("lerobot_policy_obsbench")  # one source: pyproject.toml (the distribution name)
 __all__ = [
+    "AdapterConfig",
     "ObservationAdapter",
     "available_encoders",
     "encoders",

@@ -38,6 +38,8 @@ IMAGE_CHANNELS = {"rgb": 3, "depth": 1, "rgbd": 4, "pointmap": 6}
 IMAGE_SPACES = tuple(IMAGE_CHANNELS)
 DEPTH_IMAGE_SPACES = ("depth", "rgbd", "pointmap")  # image spaces with a depth or xyz channel
 POINT_SPACES = ("pointcloud",)
+# Spaces whose input holds 3-D positions unprojected from depth (point clouds, pointmaps): `frame` expresses them.
+POSITION_SPACES = (*POINT_SPACES, "pointmap")
 # Fused spaces (beyond the paper): each part's input through its own encoder, their tokens (ACT) or features
 # (Diffusion Policy) side by side in one condition. The name is the parts joined by "+".
 FUSED_SPACES = {"rgb+pointcloud": ("rgb", "pointcloud")}
@@ -98,8 +100,7 @@ SPACE_SENSORS: dict[str, tuple[str, ...]] = {
     "rgb": (IMAGE_PREFIX,),
     "depth": (DEPTH_PREFIX,),
     "rgbd": (IMAGE_PREFIX, DEPTH_PREFIX),
-    "pointmap": (IMAGE_PREFIX, DEPTH_PREFIX, INTRINSICS_PREFIX, CAM2WORLD_PREFIX),
-    "pointcloud": (IMAGE_PREFIX, DEPTH_PREFIX, INTRINSICS_PREFIX, CAM2WORLD_PREFIX),
+    **dict.fromkeys(POSITION_SPACES, (IMAGE_PREFIX, DEPTH_PREFIX, INTRINSICS_PREFIX, CAM2WORLD_PREFIX)),
     "none": (),
     "state": (),
 }
@@ -146,7 +147,7 @@ def reads_images(obs_space: str) -> bool:
 
 def has_positions(obs_space: str) -> bool:
     """Whether the space's input holds 3-D positions, which `frame` expresses (point clouds, pointmaps)."""
-    return any(part in (*POINT_SPACES, "pointmap") for part in space_parts(obs_space))
+    return any(part in POSITION_SPACES for part in space_parts(obs_space))
 
 
 def input_channels(obs_space: str, point_features: str = "rgb+xyz") -> int:

@@ -6,11 +6,12 @@
     rgbd       -> images (B, n_cam, 4, H, W)   rgb ‖ depth, channel-stacked
     pointmap   -> images (B, n_cam, 6, H, W)   rgb ‖ xyz (metres, chosen frame; 0 where depth is invalid;
                                                official normalization: (xyz - 0.5) / 0.5)
-    pointcloud -> PointCloud(xyz (B, N, 3), features (B, N, C), mask (B, N)): all cameras fused, cropped to the
-                  workspace box (world frame, which also drops the ground; in training optionally jittered by
-                  `workspace_jitter` per bound, as the official real-robot code), moved to the chosen frame, one point
-                  per voxel (random in training; with `point_pipeline="official"` also in evaluation, and
-                  points shuffled in training); features are rgb in [-1, 1] and/or xyz in metres (or, with
+    pointcloud -> PointCloud(xyz (B, N, 3), features (B, N, C), mask (B, N)), in stages: all cameras fused
+                  (`fuse_cameras`), cropped to the workspace box (`crop_to_workspace`; world frame, which also
+                  drops the ground; in training optionally jittered by `workspace_jitter` per bound, as the
+                  official real-robot code), moved to the chosen frame, one point per voxel (`sample_points`;
+                  random in training; with `point_pipeline="official"` also in evaluation, and points shuffled
+                  in training); features (`point_features`) are rgb in [-1, 1] and/or xyz in metres (or, with
                   `point_normalization="box"`, in [-1, 1] over the workspace box, as DP3 scales its clouds).
                   A frame with no valid point inside the box (a depth dropout, a hand over the camera) becomes
                   the empty-cloud point: one point at the box centre with colour 0, so training and rollouts
@@ -30,6 +31,8 @@ on datasets recorded by LeRobot itself.
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor, nn
@@ -40,6 +43,7 @@ from lerobot_obsbench.errors import ConfigError
 from lerobot_obsbench.schema import (
     BLIND_SPACES,
     CONTROL_SPACES,
+    DEPTH_IMAGE_SPACES,
     DEPTH_NORMALIZATIONS,
     FRAMES,
     FUSED_SPACES,
@@ -47,6 +51,8 @@ from lerobot_obsbench.schema import (
     POINT_FEATURES,
     POINT_NORMALIZATIONS,
     POINT_PIPELINES,
+    POINT_SPACES,
+    POSITION_SPACES,
     PRIVILEGED_STATE_KEY,
     STATE_KEY,
     PointCloud,
@@ -58,6 +64,7 @@ from lerobot_obsbench.schema import (
     has_positions,
     image_key,
     intrinsics_key,
+    reads_points,
     stock_depth_key,
 )
 
@@ -74,7 +81,7 @@ logger = logging.getLogger(__name__)
 
 
 def check_geometry(workspace, voxel_size: float, depth_clip) -> None:
-    """Workspace box, voxel edge and depth range, checked where they are configured and where they are used."""
+    """Workspace box, voxel edge and depth range."""
     if len(workspace) != 6 or any(workspace[2 * i] >= workspace[2 * i + 1] for i in range(3)):
         raise ConfigError(f"workspace must be (xmin, xmax, ymin, ymax, zmin, zmax) with min < max; got {workspace}")
     if voxel_size <= 0:
@@ -83,49 +90,93 @@ def check_geometry(workspace, voxel_size: float, depth_clip) -> None:
         raise ConfigError(f"depth_clip must be (near, far) in metres with near < far; got {depth_clip}")
 
 
+@dataclass(frozen=True)
+class AdapterConfig:
+    """The adapter's settings: the policy config's fields of the same names (`ObservationConfig.adapter_config()`
+    builds a policy's). Every value is checked here, once, against the space, so a policy config fails on them
+    when it is validated; lists become tuples and numbers floats."""
+
+    obs_space: str
+    cameras: tuple[str, ...] = ()
+    frame: str = "world"
+    point_features: str = "rgb+xyz"
+    workspace: tuple[float, ...] = DEFAULT_WORKSPACE
+    voxel_size: float = 0.005
+    depth_clip: tuple[float, float] = (0.0, 2.0)
+    depth_normalization: str = "clip"
+    point_pipeline: str = "plugin"
+    workspace_jitter: float = 0.0
+    point_normalization: str = "metres"
+    augment: str = ""
+
+    def __post_init__(self):
+        check_obs_space(self.obs_space)
+        check_geometry(self.workspace, self.voxel_size, self.depth_clip)
+        check_choice("frame", self.frame, FRAMES)
+        check_choice("point_features", self.point_features, POINT_FEATURES)
+        check_choice("depth_normalization", self.depth_normalization, DEPTH_NORMALIZATIONS)
+        check_choice("point_pipeline", self.point_pipeline, POINT_PIPELINES)
+        check_choice("point_normalization", self.point_normalization, POINT_NORMALIZATIONS)
+        if self.workspace_jitter < 0:
+            raise ConfigError(f"workspace_jitter must be >= 0 metres; got {self.workspace_jitter}")
+        self.augmentations()  # each name exists and applies to the space
+        self._check_space()
+        normalised = {
+            "cameras": tuple(self.cameras),
+            "workspace": tuple(float(w) for w in self.workspace),
+            "voxel_size": float(self.voxel_size),
+            "depth_clip": (float(self.depth_clip[0]), float(self.depth_clip[1])),
+            "workspace_jitter": float(self.workspace_jitter),
+        }
+        for name, value in normalised.items():
+            object.__setattr__(self, name, value)  # frozen: set once, here
+
+    def _check_space(self) -> None:
+        """Settings only some spaces have: refuse them elsewhere instead of ignoring them."""
+        if self.depth_normalization == "official" and self.obs_space not in DEPTH_IMAGE_SPACES:
+            raise ConfigError(
+                f"depth_normalization={self.depth_normalization!r} scales depth / xyz images; obs_space="
+                f"{self.obs_space!r} has none (spaces that do: {', '.join(DEPTH_IMAGE_SPACES)})"
+            )
+        if self.workspace_jitter and not reads_points(self.obs_space):
+            raise ConfigError(
+                f"workspace_jitter={self.workspace_jitter} jitters the point-cloud crop; obs_space={self.obs_space!r} "
+                "crops nothing (use obs_space='pointcloud' or leave workspace_jitter=0)"
+            )
+        if self.point_normalization == "box" and (not reads_points(self.obs_space) or self.frame != "world"):
+            raise ConfigError(
+                f"point_normalization={self.point_normalization!r} scales world-frame point clouds by the crop box; "
+                f"obs_space={self.obs_space!r} with frame={self.frame!r} has none (use obs_space='pointcloud' with "
+                "frame='world', or leave point_normalization='metres')"
+            )
+        if self.frame != "world" and not has_positions(self.obs_space):
+            raise ConfigError(
+                f"frame={self.frame!r} changes point coordinates; obs_space={self.obs_space!r} has none "
+                "(use pointcloud or pointmap, or leave frame='world')"
+            )
+
+    def augmentations(self) -> tuple[str, ...]:
+        """The names of the `augment` recipe, each checked to apply to the space."""
+        return parse_augment(self.augment, self.obs_space)
+
+
 class ObservationAdapter(nn.Module):
-    def __init__(
-        self,
-        obs_space: str,
-        cameras: list[str],
-        frame: str = "world",
-        point_features: str = "rgb+xyz",
-        workspace: tuple[float, ...] = DEFAULT_WORKSPACE,
-        voxel_size: float = 0.005,
-        depth_clip: tuple[float, float] = (0.0, 2.0),
-        depth_normalization: str = "clip",
-        point_pipeline: str = "plugin",
-        workspace_jitter: float = 0.0,
-        point_normalization: str = "metres",
-        augment: str = "",
-    ):
+    """Sensor batch -> the inputs of `config.obs_space` (module docstring); a point cloud's stages are methods that
+    each run alone (`fuse_cameras`, `crop_to_workspace`, `sample_points`, `point_features`)."""
+
+    def __init__(self, config: AdapterConfig):
         super().__init__()
-        if not cameras and obs_space not in CONTROL_SPACES:
-            raise SchemaError(f"ObservationAdapter for obs_space={obs_space!r} needs at least one camera name.")
-        check_geometry(workspace, voxel_size, depth_clip)
-        self.obs_space = check_obs_space(obs_space)
-        self.cameras = list(cameras)
-        self.frame = check_choice("frame", frame, FRAMES)
-        self.point_features = check_choice("point_features", point_features, POINT_FEATURES)
-        self.workspace = tuple(float(w) for w in workspace)
-        self.voxel_size = float(voxel_size)
-        self.depth_clip = (float(depth_clip[0]), float(depth_clip[1]))
-        self.depth_normalization = check_choice("depth_normalization", depth_normalization, DEPTH_NORMALIZATIONS)
-        self.official_points = check_choice("point_pipeline", point_pipeline, POINT_PIPELINES) == "official"
-        self.box_scaled = check_choice("point_normalization", point_normalization, POINT_NORMALIZATIONS) == "box"
-        if self.box_scaled and self.frame != "world":
-            raise ConfigError(f"point_normalization='box' scales world coordinates by the crop box; frame={frame!r}")
-        if workspace_jitter < 0:
-            raise ConfigError(f"workspace_jitter must be >= 0 metres; got {workspace_jitter}")
-        self.workspace_jitter = float(workspace_jitter)
-        self.augment = Augmenter(parse_augment(augment, self.obs_space))
+        if not config.cameras and config.obs_space not in CONTROL_SPACES:
+            raise SchemaError(f"ObservationAdapter for obs_space={config.obs_space!r} needs at least one camera name.")
+        self.config = config
+        self.augment = Augmenter(config.augmentations())
         self.frames_seen, self.frames_empty, self._next_warning = 0, 0, 1  # empty-cloud bookkeeping
         self.register_buffer("rgb_mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("rgb_std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
 
     @property
     def needs_ee_pose(self) -> bool:
-        return self.frame == "ee" and has_positions(self.obs_space)
+        return self.config.frame == "ee" and has_positions(self.config.obs_space)
 
     # ---- checked accessors: a clear error names the key and the fix ------------------------------------
 
@@ -168,115 +219,150 @@ class ObservationAdapter(nn.Module):
             )
         return K, cam2world
 
-    # ---- spaces ------------------------------------------------------------------------------------------
+    def _world_points(
+        self, batch: dict, cam: str, box: Sequence[float] | None = None
+    ) -> tuple[Tensor, Tensor, tuple[slice, slice]]:
+        """One camera's world points (B, h, w, 3) and where its depth is valid (B, h, w): every pixel, or with
+        `box` (xmin, xmax, ..., world frame) only the window of pixels that can land in it; and that window's
+        rows and columns."""
+        depth_m = self._depth_m(batch, cam)
+        K, cam2world = self._camera(batch, cam)
+        rows = columns = slice(None)
+        window = None if box is None else geometry.box_pixel_window(K, cam2world, box, *depth_m.shape[1:])
+        if window is not None:
+            v0, v1, u0, u1 = window
+            rows, columns = slice(v0, v1), slice(u0, u1)
+            depth_m, K = depth_m[:, rows, columns], geometry.shift_intrinsics(K, v0, u0)
+        points = geometry.transform_points(geometry.unproject_depth(depth_m, K), cam2world)
+        return points, depth_m > 0, (rows, columns)
 
-    def _scaled_depth(self, depth_m: Tensor) -> Tensor:
-        if self.depth_normalization == "official":
-            return (depth_m - 0.5) / 0.5
-        near, far = self.depth_clip
-        return (depth_m.clamp(near, far) - near) / (far - near) * 2 - 1
-
-    def _frame_transform(self, first_cam: str, batch: dict, ee_pose: Tensor | None) -> Tensor | None:
+    def _frame_transform(self, batch: dict, ee_pose: Tensor | None) -> Tensor | None:
         """world -> chosen frame transform (B, 4, 4), or None for the world frame."""
-        if self.frame == "world":
+        if self.config.frame == "world":
             return None
-        if self.frame == "camera":
-            return geometry.invert_transform(self._camera(batch, first_cam)[1])
+        if self.config.frame == "camera":
+            return geometry.invert_transform(self._camera(batch, self.config.cameras[0])[1])
         if ee_pose is None:
             raise SchemaError("frame='ee' needs the end-effector pose (the last 7 values of observation.state).")
         return geometry.invert_transform(ee_pose)
 
-    def _world_points(self, batch: dict, cam: str) -> tuple[Tensor, Tensor]:
-        depth_m = self._depth_m(batch, cam)
-        K, cam2world = self._camera(batch, cam)
-        points = geometry.transform_points(geometry.unproject_depth(depth_m, K), cam2world)
-        return points, depth_m > 0
+    # ---- spaces ------------------------------------------------------------------------------------------
 
     def forward(self, batch: dict, ee_pose: Tensor | None = None) -> Tensor | PointCloud | tuple:
-        if self.obs_space in BLIND_SPACES:
+        space = self.config.obs_space
+        if space in BLIND_SPACES:
             state = _require(batch, STATE_KEY)
             return state.new_zeros(state.shape[0], 0)
-        if self.obs_space in ORACLE_SPACES:
+        if space in ORACLE_SPACES:
             return _require(batch, PRIVILEGED_STATE_KEY).float()
-        if self.obs_space in FUSED_SPACES:
-            return tuple(self._space_input(part, batch, ee_pose) for part in FUSED_SPACES[self.obs_space])
-        return self._space_input(self.obs_space, batch, ee_pose)
+        if space in FUSED_SPACES:
+            return tuple(self._space_input(part, batch, ee_pose) for part in FUSED_SPACES[space])
+        return self._space_input(space, batch, ee_pose)
 
     def _space_input(self, space: str, batch: dict, ee_pose: Tensor | None) -> Tensor | PointCloud:
-        if space == "pointcloud":
+        if space in POINT_SPACES:
             return self._pointcloud(batch, ee_pose)
-        to_frame = self._frame_transform(self.cameras[0], batch, ee_pose) if space == "pointmap" else None
-        per_camera = []
-        for cam in self.cameras:
-            channels = []
-            if space in ("rgb", "rgbd", "pointmap"):
-                channels.append((self.augment.colour(self._rgb(batch, cam)) - self.rgb_mean) / self.rgb_std)
-            if space in ("depth", "rgbd"):
-                channels.append(self._scaled_depth(self._depth_m(batch, cam))[:, None])
-            if space == "pointmap":
-                points, valid = self._world_points(batch, cam)
-                if to_frame is not None:
-                    points = geometry.transform_points(points, to_frame)
-                points = points * valid[..., None]
-                if self.depth_normalization == "official":
-                    points = (points - 0.5) / 0.5
-                channels.append(points.permute(0, 3, 1, 2))
-            per_camera.append(torch.cat(channels, dim=1))
+        to_frame = self._frame_transform(batch, ee_pose) if space in POSITION_SPACES else None
+        per_camera = [
+            torch.cat(self._image_channels(space, batch, cam, to_frame), dim=1) for cam in self.config.cameras
+        ]
         return self.augment.image(torch.stack(per_camera, dim=1))
 
+    def _image_channels(self, space: str, batch: dict, cam: str, to_frame: Tensor | None) -> list[Tensor]:
+        """One camera's channels of an image space (B, C, H, W) each: colour, scaled depth, xyz."""
+        channels = []
+        if space in ("rgb", "rgbd", "pointmap"):
+            channels.append((self.augment.colour(self._rgb(batch, cam)) - self.rgb_mean) / self.rgb_std)
+        if space in ("depth", "rgbd"):
+            channels.append(self._scaled_depth(self._depth_m(batch, cam))[:, None])
+        if space in POSITION_SPACES:
+            points, valid, _ = self._world_points(batch, cam)
+            points = _in_frame(points, to_frame) * valid[..., None]
+            if self.config.depth_normalization == "official":
+                points = (points - 0.5) / 0.5
+            channels.append(points.permute(0, 3, 1, 2))
+        return channels
+
+    def _scaled_depth(self, depth_m: Tensor) -> Tensor:
+        if self.config.depth_normalization == "official":
+            return (depth_m - 0.5) / 0.5
+        near, far = self.config.depth_clip
+        return (depth_m.clamp(near, far) - near) / (far - near) * 2 - 1
+
     def _pointcloud(self, batch: dict, ee_pose: Tensor | None) -> PointCloud:
-        jitter = self.workspace_jitter if self.training else 0.0
-        # only the pixels that can land in the box (widened by the jitter and by how far the point augmentations
-        # can move a point into it) are unprojected: the same points
-        margin = jitter + self.augment.point_reach(self.workspace)
-        widest = [bound + (margin if i % 2 else -margin) for i, bound in enumerate(self.workspace)]
-        xyz, rgb, valid = [], [], []
-        for cam in self.cameras:
-            depth_m = self._depth_m(batch, cam)
-            colour = self._rgb(batch, cam)
-            if colour.shape[-2:] != depth_m.shape[1:]:
-                raise SchemaError(
-                    f"{image_key(cam)} is {tuple(colour.shape[-2:])} but {depth_key(cam)} is "
-                    f"{tuple(depth_m.shape[1:])}: point clouds need depth aligned to colour at the same resolution."
-                )
-            K, cam2world = self._camera(batch, cam)
-            window = geometry.box_pixel_window(K, cam2world, widest, *depth_m.shape[1:])
-            if window is not None:
-                v0, v1, u0, u1 = window
-                depth_m, colour = depth_m[:, v0:v1, u0:u1], colour[..., v0:v1, u0:u1]
-                K = geometry.shift_intrinsics(K, v0, u0)
-            points = geometry.transform_points(geometry.unproject_depth(depth_m, K), cam2world)
-            xyz.append(points.flatten(1, 2))
-            rgb.append(colour.permute(0, 2, 3, 1).flatten(1, 2) * 2 - 1)
-            valid.append((depth_m > 0).flatten(1))
-        xyz, rgb, valid = torch.cat(xyz, 1), torch.cat(rgb, 1), torch.cat(valid, 1)
-        box = torch.tensor(self.workspace, dtype=xyz.dtype, device=xyz.device)
-        if jitter > 0:  # each bound moves by up to ±jitter, per sample
-            box = box + (torch.rand(len(xyz), 6, device=xyz.device, dtype=xyz.dtype) * 2 - 1) * jitter
+        # only the pixels that can land in the crop box (widened by the jitter and by how far the point
+        # augmentations can move a point into it) are unprojected: the same points, fewer of them
+        reach = self._jitter + self.augment.point_reach(self.config.workspace)
+        xyz, rgb, valid = self.fuse_cameras(batch, _widened(self.config.workspace, reach))
+        workspace = torch.tensor(self.config.workspace, dtype=xyz.dtype, device=xyz.device)
+        box = self._crop_box(workspace, len(xyz))
         xyz, valid = self.augment.points(xyz, valid, box)
+        xyz, rgb, valid = self.crop_to_workspace(xyz, rgb, valid, box)
+        xyz = _in_frame(xyz, self._frame_transform(batch, ee_pose))
+        return self.point_features(*self.sample_points(xyz, rgb, valid), workspace)
+
+    @property
+    def _jitter(self) -> float:
+        """The workspace jitter in force: none in evaluation."""
+        return self.config.workspace_jitter if self.training else 0.0
+
+    def _crop_box(self, workspace: Tensor, batch_size: int) -> Tensor:
+        """The workspace box (6,), or in training with `workspace_jitter` one per cloud (B, 6) whose bounds each
+        move by up to ±jitter (as the official real-robot code's)."""
+        if self._jitter == 0:
+            return workspace
+        offsets = torch.rand(batch_size, 6, device=workspace.device, dtype=workspace.dtype) * 2 - 1
+        return workspace + offsets * self._jitter
+
+    def fuse_cameras(self, batch: dict, box: Sequence[float]) -> tuple[Tensor, Tensor, Tensor]:
+        """Every camera's pixels that can land in `box` (xmin, xmax, ..., world frame), side by side: world points
+        (B, N, 3), colours in [-1, 1] (B, N, 3) and where depth is valid (B, N)."""
+        xyz, rgb, valid = [], [], []
+        for cam in self.config.cameras:
+            points, cam_valid, (rows, columns) = self._world_points(batch, cam, box)
+            colour, size = self._rgb(batch, cam), batch[depth_key(cam)].shape[1:3]
+            if colour.shape[-2:] != size:
+                raise SchemaError(
+                    f"{image_key(cam)} is {tuple(colour.shape[-2:])} but {depth_key(cam)} is {tuple(size)}: "
+                    "point clouds need depth aligned to colour at the same resolution."
+                )
+            xyz.append(points.flatten(1, 2))
+            rgb.append(colour[..., rows, columns].permute(0, 2, 3, 1).flatten(1, 2) * 2 - 1)
+            valid.append(cam_valid.flatten(1))
+        return torch.cat(xyz, 1), torch.cat(rgb, 1), torch.cat(valid, 1)
+
+    def crop_to_workspace(self, xyz: Tensor, rgb: Tensor, valid: Tensor, box: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """The valid points inside `box` ((6,) or one per cloud (B, 6)), packed to the front (xyz, rgb, mask); a
+        cloud with none gets the empty-cloud point (the box's centre, colour 0), and is counted."""
         valid = geometry.crop_mask(xyz, valid, box)
         empty = ~valid.any(dim=1)
         self._count_empty(int(empty.sum()), len(empty))
-        if bool(empty.any()):  # the empty-cloud point: one point at the box centre, colour 0 (module docstring)
-            centre = (box.reshape(-1, 3, 2).mean(-1)).expand(len(xyz), 3)
-            xyz[empty, 0], rgb[empty, 0], valid[empty, 0] = centre[empty], 0.0, True
-        xyz, rgb, valid = geometry.pack(valid, xyz, rgb)
-        to_frame = self._frame_transform(self.cameras[0], batch, ee_pose)
-        if to_frame is not None:
-            xyz = geometry.transform_points(xyz, to_frame)
-        keep = geometry.voxel_sample(xyz, valid, self.voxel_size, random=self.training or self.official_points)
+        xyz, rgb, mask = geometry.pack(valid, xyz, rgb)
+        if bool(empty.any()):  # into the first slot of the packed copies, which pack always keeps
+            centre = box.reshape(-1, 3, 2).mean(-1).expand(len(xyz), 3)
+            xyz[empty, 0], rgb[empty, 0], mask[empty, 0] = centre[empty], 0.0, True
+        return xyz, rgb, mask
+
+    def sample_points(self, xyz: Tensor, rgb: Tensor, mask: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """One point per `voxel_size` voxel (a random one in training, and with point_pipeline='official' also in
+        evaluation), packed to the front (xyz, rgb, mask)."""
+        official = self.config.point_pipeline == "official"
+        keep = geometry.voxel_sample(xyz, mask, self.config.voxel_size, random=self.training or official)
         xyz, rgb, mask = geometry.pack(keep, xyz, rgb)
-        if self.training and self.official_points:  # FPS then starts from a random point, as in the official code
+        if self.training and official:  # FPS then starts from a random point, as in the official code
             xyz, rgb, mask = geometry.shuffle(mask, xyz, rgb)
+        return xyz, rgb, mask
+
+    def point_features(self, xyz: Tensor, rgb: Tensor, mask: Tensor, workspace: Tensor) -> PointCloud:
+        """The cloud with its `point_features` (rgb, xyz in metres or, with point_normalization='box', in [-1, 1]
+        over the `workspace` box (6,)), zero outside `mask`."""
         scaled = xyz
-        if self.box_scaled:  # the nominal box, also when jittered: the same point gets the same features
-            bounds = torch.tensor(self.workspace, dtype=xyz.dtype, device=xyz.device).reshape(3, 2)
+        if self.config.point_normalization == "box":  # the nominal box also when jittered: same point, same features
+            bounds = workspace.reshape(3, 2)
             scaled = (xyz - bounds.mean(-1)) / ((bounds[:, 1] - bounds[:, 0]) / 2)
-        if self.point_features == "rgb+xyz":
-            feats = torch.cat([rgb, scaled], -1)
-        else:
-            feats = scaled if self.point_features == "xyz" else rgb
-        return PointCloud(xyz=xyz * mask[..., None], features=feats * mask[..., None], mask=mask)
+        parts = {"rgb": rgb, "xyz": scaled}
+        features = torch.cat([parts[name] for name in self.config.point_features.split("+")], -1)
+        return PointCloud(xyz=xyz * mask[..., None], features=features * mask[..., None], mask=mask)
 
     def _count_empty(self, empty: int, frames: int) -> None:
         """Count frames with no point in the workspace: warn as they come, and stop a training whose data is
@@ -285,20 +371,31 @@ class ObservationAdapter(nn.Module):
         self.frames_empty += empty
         if not empty:
             return
+        workspace = self.config.workspace
         if self.frames_empty >= self._next_warning:
             self._next_warning = 2 * self.frames_empty
             logger.warning(
                 f"{self.frames_empty} of {self.frames_seen} frames so far had no valid point inside the workspace "
-                f"{self.workspace} (depth dropout, occlusion): each was given the empty-cloud point"
+                f"{workspace} (depth dropout, occlusion): each was given the empty-cloud point"
             )
         fraction = self.frames_empty / self.frames_seen
         if self.training and self.frames_seen >= EMPTY_CHECK_FRAMES and fraction > MAX_EMPTY_FRACTION:
             raise SchemaError(
                 f"{self.frames_empty} of the first {self.frames_seen} training frames have no valid point inside "
-                f"the workspace {self.workspace} in {', '.join(depth_key(c) for c in self.cameras)}: the data, not a "
-                "dropout. Check that depth is in millimetres, that cam2world maps camera -> world, and "
+                f"the workspace {workspace} in {', '.join(depth_key(c) for c in self.config.cameras)}: the data, "
+                "not a dropout. Check that depth is in millimetres, that cam2world maps camera -> world, and "
                 "--policy.workspace (`obsbench validate --root DATASET` scans every frame)."
             )
+
+
+def _widened(box: Sequence[float], margin: float) -> list[float]:
+    """The box (xmin, xmax, ymin, ymax, zmin, zmax) grown by `margin` on every side."""
+    return [bound + (margin if i % 2 else -margin) for i, bound in enumerate(box)]
+
+
+def _in_frame(points: Tensor, to_frame: Tensor | None) -> Tensor:
+    """Points (B, ..., 3) moved by the world -> frame transform, or as they are in the world frame (None)."""
+    return points if to_frame is None else geometry.transform_points(points, to_frame)
 
 
 def _require(batch: dict, key: str) -> Tensor:

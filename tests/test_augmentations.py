@@ -12,7 +12,7 @@ import torch
 from lerobot_obsbench import augmentations as aug
 from lerobot_obsbench.augmentations import AugmentationError, Augmenter, parse_augment
 from lerobot_obsbench.schema import IMAGE_SPACES, OBS_SPACES, reads_images, reads_points
-from lerobot_obsbench.spaces import ObservationAdapter
+from lerobot_obsbench.spaces import AdapterConfig, ObservationAdapter
 from tests.helpers import CAM, frame_batch
 
 BOX = (-0.3, 0.3, -0.2, 0.2, 0.01, 0.25)
@@ -133,8 +133,8 @@ def test_point_dropout_drops_points_and_moves_none():
 def test_the_adapter_augments_in_training_only_and_the_same_seed_gives_the_same_batch(synthetic_module, space, recipe):
     batch = frame_batch(synthetic_module, batch_size=2, size=32)
     workspace = (-0.5, 0.5, -0.5, 0.5, 0.005, 0.5)
-    plain = ObservationAdapter(space, [CAM], workspace=workspace).eval()
-    adapter = ObservationAdapter(space, [CAM], workspace=workspace, augment=recipe)
+    plain = ObservationAdapter(AdapterConfig(space, [CAM], workspace=workspace)).eval()
+    adapter = ObservationAdapter(AdapterConfig(space, [CAM], workspace=workspace, augment=recipe))
 
     def run(seed: int):
         torch.manual_seed(seed)

@@ -184,7 +184,6 @@ def test_training_seeds_pool_their_episodes_and_widen_the_interval():
     assert lo < pooled_lo and hi > pooled_hi  # the two seeds disagree: training variance widens it
 
 
-
 def test_a_method_that_never_or_always_succeeds_has_its_rate_inside_its_interval(tmp_path):
     """Seeds at 0/n (or n/n) all: the interval over seeds and episodes ends at 0 (or 1), as Jeffreys' does, and
     the report draws such a grid (a task nothing learns)."""
@@ -196,6 +195,7 @@ def test_a_method_that_never_or_always_succeeds_has_its_rate_inside_its_interval
     paths = write_report(build_report(stored(*records)), tmp_path / "rep")
     assert (tmp_path / "rep" / "success_by_task.png").read_bytes()[:4] == b"\x89PNG"
     assert "0.00 [0.00, " in paths["markdown"].read_text()
+
 
 def test_varying_learning_rates_become_separate_columns():
     records = [record("a", "T", "rgb", 3, lr=1e-4), record("b", "T", "rgb", 5, lr=1e-3)]

@@ -19,7 +19,7 @@ from lerobot_obsbench.encoders import (
 from lerobot_obsbench.encoders.point_tokenizer import sine_embedding_3d
 from lerobot_obsbench.encoders.pretrained import CheckpointError
 from lerobot_obsbench.schema import PointCloud, input_channels
-from lerobot_obsbench.spaces import ObservationAdapter
+from lerobot_obsbench.spaces import AdapterConfig, ObservationAdapter
 from tests.helpers import CAM, frame_batch
 
 
@@ -178,7 +178,9 @@ def test_imagenet_offline_gives_a_clear_error(monkeypatch, tmp_path):
 @pytest.fixture(scope="module")
 def cloud(synthetic_module):
     batch = frame_batch(synthetic_module, batch_size=3, size=40)
-    return ObservationAdapter("pointcloud", [CAM], workspace=(-0.5, 0.5, -0.5, 0.5, 0.005, 0.5)).eval()(batch)
+    return ObservationAdapter(AdapterConfig("pointcloud", [CAM], workspace=(-0.5, 0.5, -0.5, 0.5, 0.005, 0.5))).eval()(
+        batch
+    )
 
 
 @pytest.mark.parametrize("sampling", ["post", "pre"])

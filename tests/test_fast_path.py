@@ -13,7 +13,7 @@ import torch
 from lerobot_obsbench import geometry
 from lerobot_obsbench.encoders import make_encoder
 from lerobot_obsbench.robots.realtime import AsyncChunks, StepTimer
-from lerobot_obsbench.spaces import ObservationAdapter
+from lerobot_obsbench.spaces import AdapterConfig, ObservationAdapter
 from tests.helpers import frame_batch
 
 
@@ -51,7 +51,9 @@ def wide_batch(synthetic_module):
 def test_pixel_window_keeps_the_same_cloud(wide_batch, workspace, training, monkeypatch):
     """Unprojecting only the window of pixels that can land in the box gives the cloud of the whole frame,
     point for point, in evaluation and in training (same random draws)."""
-    adapter = ObservationAdapter("pointcloud", ["base_camera"], workspace=workspace, workspace_jitter=0.01)
+    adapter = ObservationAdapter(
+        AdapterConfig("pointcloud", ["base_camera"], workspace=workspace, workspace_jitter=0.01)
+    )
     adapter.train(training)
     torch.manual_seed(3)
     fast = adapter(wide_batch)
@@ -125,9 +127,9 @@ def test_point_tokens_at_inference_equal_the_grouped_path(wide_batch, pipeline):
             module.running_var.uniform_(0.3, 3.0)
             module.weight.data.normal_()
             module.bias.data.normal_()
-    cloud = ObservationAdapter("pointcloud", ["base_camera"], workspace=(-0.3, 0.3, -0.3, 0.3, 0.005, 0.5)).eval()(
-        wide_batch
-    )
+    cloud = ObservationAdapter(
+        AdapterConfig("pointcloud", ["base_camera"], workspace=(-0.3, 0.3, -0.3, 0.3, 0.005, 0.5))
+    ).eval()(wide_batch)
     assert (cloud.mask.sum(1) < 300).any() and (cloud.mask.sum(1) > 8).all()
     encoder.eval()
     with torch.no_grad():

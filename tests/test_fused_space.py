@@ -18,7 +18,7 @@ from lerobot_obsbench.encoders import (
     make_encoder,
 )
 from lerobot_obsbench.schema import FUSED_SPACES, OBS_SPACES, PointCloud, reads_images, reads_points, sensor_keys
-from lerobot_obsbench.spaces import ObservationAdapter
+from lerobot_obsbench.spaces import AdapterConfig, ObservationAdapter
 from tests.helpers import CAM, frame_batch
 
 FUSED = "rgb+pointcloud"
@@ -34,9 +34,9 @@ def test_a_fused_space_reads_what_its_parts_read():
 
 def test_the_adapter_gives_each_parts_input_as_the_parts_own_space_does(synthetic_module):
     batch = frame_batch(synthetic_module, batch_size=2, size=32)
-    images, cloud = ObservationAdapter(FUSED, [CAM], workspace=WORKSPACE).eval()(batch)
-    alone_images = ObservationAdapter("rgb", [CAM], workspace=WORKSPACE).eval()(batch)
-    alone_cloud = ObservationAdapter("pointcloud", [CAM], workspace=WORKSPACE).eval()(batch)
+    images, cloud = ObservationAdapter(AdapterConfig(FUSED, [CAM], workspace=WORKSPACE)).eval()(batch)
+    alone_images = ObservationAdapter(AdapterConfig("rgb", [CAM], workspace=WORKSPACE)).eval()(batch)
+    alone_cloud = ObservationAdapter(AdapterConfig("pointcloud", [CAM], workspace=WORKSPACE)).eval()(batch)
     assert isinstance(cloud, PointCloud)
     assert torch.equal(images, alone_images)
     assert torch.equal(cloud.xyz, alone_cloud.xyz) and torch.equal(cloud.features, alone_cloud.features)
@@ -61,7 +61,9 @@ def test_encoder_pairs_are_named_by_their_parts_and_checked_in_order():
 @pytest.mark.parametrize("output", ["tokens", "global"])
 def test_the_pair_puts_its_parts_outputs_side_by_side(synthetic_module, output):
     batch = frame_batch(synthetic_module, batch_size=3, size=32)
-    images, cloud = ObservationAdapter(FUSED, [CAM], workspace=WORKSPACE, point_features="xyz").eval()(batch)
+    images, cloud = ObservationAdapter(AdapterConfig(FUSED, [CAM], workspace=WORKSPACE, point_features="xyz")).eval()(
+        batch
+    )
     torch.manual_seed(0)
     pair = make_encoder("spatial_softmax+dp3", FUSED, output, dim=16, **PAIR_OPTIONS).eval()
     image_part, point_part = pair.parts

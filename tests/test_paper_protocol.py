@@ -14,7 +14,7 @@ from lerobot_obsbench.encoders.point_tokenizer import sine_embedding_3d
 from lerobot_obsbench.policies import ObsACTConfig, ObsDiffusionConfig
 from lerobot_obsbench.presets import preset_overrides
 from lerobot_obsbench.schema import PointCloud
-from lerobot_obsbench.spaces import ObservationAdapter
+from lerobot_obsbench.spaces import AdapterConfig, ObservationAdapter
 from tests.helpers import CAM, first_batch, frame_batch, training_setup
 
 
@@ -58,10 +58,10 @@ def test_extra_stem_channels_start_at_zero_from_scratch():
 def test_depth_and_xyz_scaling_as_the_official_code(synthetic_module):
     batch = frame_batch(synthetic_module, batch_size=2, size=24)
     depth_m = batch[f"observation.depth.{CAM}"][..., 0].float() / 1000
-    official = ObservationAdapter("rgbd", [CAM], depth_normalization="official")(batch)
+    official = ObservationAdapter(AdapterConfig("rgbd", [CAM], depth_normalization="official"))(batch)
     torch.testing.assert_close(official[:, 0, 3], (depth_m - 0.5) / 0.5)
-    pointmap = ObservationAdapter("pointmap", [CAM], depth_normalization="official")(batch)
-    plain = ObservationAdapter("pointmap", [CAM])(batch)
+    pointmap = ObservationAdapter(AdapterConfig("pointmap", [CAM], depth_normalization="official"))(batch)
+    plain = ObservationAdapter(AdapterConfig("pointmap", [CAM]))(batch)
     torch.testing.assert_close(pointmap[:, 0, 3:], (plain[:, 0, 3:] - 0.5) / 0.5)
     with pytest.raises(ValueError, match="depth_normalization='official' scales depth / xyz images"):
         ObsACTConfig(device="cpu", obs_space="rgb", depth_normalization="official")
@@ -133,7 +133,9 @@ def test_official_point_pipeline_samples_randomly_also_at_evaluation(synthetic_m
     workspace = (-0.5, 0.5, -0.5, 0.5, 0.005, 0.5)
     clouds = {}
     for pipeline in ("plugin", "official"):
-        adapter = ObservationAdapter("pointcloud", [CAM], workspace=workspace, voxel_size=0.02, point_pipeline=pipeline)
+        adapter = ObservationAdapter(
+            AdapterConfig("pointcloud", [CAM], workspace=workspace, voxel_size=0.02, point_pipeline=pipeline)
+        )
         adapter.eval()
         torch.manual_seed(0)
         first = adapter(batch)

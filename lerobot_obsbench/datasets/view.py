@@ -29,7 +29,7 @@ from lerobot_obsbench.schema import (
     stock_depth_cameras,
     stock_depth_key,
 )
-from lerobot_obsbench.spaces import CalibratedDepth, ObservationAdapter
+from lerobot_obsbench.spaces import AdapterConfig, CalibratedDepth, ObservationAdapter
 
 AXIS_COLOURS = [[230, 40, 40], [40, 200, 40], [40, 80, 230]]
 
@@ -80,8 +80,8 @@ def coloured_points(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The fused world points of `cameras` inside `workspace` after voxel sampling, as the policy's point-cloud
     adapter makes them: xyz (N, 3) and rgb uint8 (N, 3)."""
-    adapter = ObservationAdapter("pointcloud", cameras, workspace=tuple(workspace), voxel_size=voxel_size).eval()
-    cloud = adapter(batch)
+    config = AdapterConfig("pointcloud", cameras, workspace=workspace, voxel_size=voxel_size)
+    cloud = ObservationAdapter(config).eval()(batch)
     mask = cloud.mask[0]
     rgb = ((cloud.features[0][mask][:, :3] + 1) * 127.5).round().clamp(0, 255).to(torch.uint8)
     return cloud.xyz[0][mask].numpy(), rgb.numpy()

@@ -10,7 +10,6 @@ from typing import ClassVar
 
 from lerobot.optim.optimizers import AdamWConfig
 
-from lerobot_obsbench.augmentations import parse_augment
 from lerobot_obsbench.camera_calibration import dataset_calibration
 from lerobot_obsbench.encoders import (
     EncoderContext,
@@ -22,22 +21,15 @@ from lerobot_obsbench.encoders import (
 from lerobot_obsbench.errors import ConfigError
 from lerobot_obsbench.policies.onecycle import OneCycleSchedulerConfig
 from lerobot_obsbench.schema import (
-    DEPTH_IMAGE_SPACES,
-    DEPTH_NORMALIZATIONS,
     DEPTH_PREFIX,
     EE_POSE_SIZE,
-    FRAMES,
     ORACLE_SPACES,
-    POINT_FEATURES,
-    POINT_NORMALIZATIONS,
-    POINT_PIPELINES,
     PRIVILEGED_STATE_KEY,
     SAMPLING,
     STATE_KEY,
     SchemaError,
     camera_resolution,
     check_choice,
-    check_obs_space,
     has_positions,
     is_sensor_key,
     reads_images,
@@ -47,7 +39,7 @@ from lerobot_obsbench.schema import (
     validate_features,
     with_calibrated_depth,
 )
-from lerobot_obsbench.spaces import DEFAULT_WORKSPACE, check_geometry
+from lerobot_obsbench.spaces import DEFAULT_WORKSPACE, AdapterConfig
 
 # Config field -> the encoder option it sets. A value other than the field's default is refused where the chosen
 # encoder does not take that option (it would be silently ignored). Policy configs add their own.
@@ -214,24 +206,15 @@ class ObservationConfig:
 
     def validate_observation_fields(self) -> None:
         """Config-time checks: fail before any data is read."""
-        check_obs_space(self.obs_space)
+        self.adapter_config()  # the space and the adapter's fields, checked against it
         if not self.encoder:
             self.encoder = default_encoder(self.obs_space)
         check_encoder(self.encoder, self.obs_space)
-        check_choice("frame", self.frame, FRAMES)
-        check_choice("point_features", self.point_features, POINT_FEATURES)
         check_choice("sampling", self.sampling, SAMPLING)
-        check_choice("depth_normalization", self.depth_normalization, DEPTH_NORMALIZATIONS)
-        check_choice("point_pipeline", self.point_pipeline, POINT_PIPELINES)
-        check_choice("point_normalization", self.point_normalization, POINT_NORMALIZATIONS)
-        parse_augment(self.augment, self.obs_space)
         if self.image_input_size is not None and self.image_input_size < 16:
             raise ConfigError(f"image_input_size must be >= 16 pixels or None; got {self.image_input_size}")
         if self.optimizer_grad_clip_norm < 0:
             raise ConfigError(f"optimizer_grad_clip_norm must be >= 0; got {self.optimizer_grad_clip_norm}")
-        check_geometry(self.workspace, self.voxel_size, self.depth_clip)
-        if self.workspace_jitter < 0:
-            raise ConfigError(f"workspace_jitter must be >= 0 metres; got {self.workspace_jitter}")
         for name in ("num_tokens", "knn"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} must be >= 1; got {getattr(self, name)}")
@@ -239,7 +222,8 @@ class ObservationConfig:
         self.check_replaced_fields()
 
     def check_ablations(self) -> None:
-        """Design choices that only some spaces / encoders have: refuse the others instead of ignoring them."""
+        """Design choices that only some encoders have: refuse the others instead of ignoring them (the adapter's
+        fields are checked against the space by `adapter_config()`)."""
         info = encoder_info(self.encoder)
         if self.pretrained and not info.pretrained:
             with_weights = [n for n in available_encoders(self.obs_space) if encoder_info(n).pretrained]
@@ -266,27 +250,10 @@ class ObservationConfig:
                 raise ConfigError(
                     f"{name}={value!r}: encoder {self.encoder!r} takes {', '.join(allowed)} (or None, its own)"
                 )
-        if self._non_default("depth_normalization") and self.obs_space not in DEPTH_IMAGE_SPACES:
-            raise ConfigError(
-                f"depth_normalization={self.depth_normalization!r} scales depth / xyz images; obs_space="
-                f"{self.obs_space!r} has none (spaces that do: {', '.join(DEPTH_IMAGE_SPACES)})"
-            )
-        if self.workspace_jitter and not reads_points(self.obs_space):
-            raise ConfigError(
-                f"workspace_jitter={self.workspace_jitter} jitters the point-cloud crop; obs_space={self.obs_space!r} "
-                "crops nothing (use obs_space='pointcloud' or leave workspace_jitter=0)"
-            )
-        if self._non_default("point_normalization") and (not reads_points(self.obs_space) or self.frame != "world"):
-            raise ConfigError(
-                f"point_normalization={self.point_normalization!r} scales world-frame point clouds by the crop box; "
-                f"obs_space={self.obs_space!r} with frame={self.frame!r} has none (use obs_space='pointcloud' with "
-                "frame='world', or leave point_normalization='metres')"
-            )
-        if self.frame != "world" and not has_positions(self.obs_space):
-            raise ConfigError(
-                f"frame={self.frame!r} changes point coordinates; obs_space={self.obs_space!r} has none "
-                "(use pointcloud or pointmap, or leave frame='world')"
-            )
+
+    def adapter_config(self) -> AdapterConfig:
+        """The observation adapter's settings: this config's fields of the same names, checked against the space."""
+        return AdapterConfig(**{spec.name: getattr(self, spec.name) for spec in dataclasses.fields(AdapterConfig)})
 
     def check_replaced_fields(self) -> None:
         """LeRobot fields this policy does not use: refuse a value the user set, naming what to use instead."""

@@ -63,20 +63,7 @@ class ObservationEncoder(nn.Module):
 
     def __init__(self, config, output: str, dim: int, dataset_stats: dict | None = None):
         super().__init__()
-        self.adapter = ObservationAdapter(
-            config.obs_space,
-            config.cameras,
-            frame=config.frame,
-            point_features=config.point_features,
-            workspace=tuple(config.workspace),
-            voxel_size=config.voxel_size,
-            depth_clip=tuple(config.depth_clip),
-            depth_normalization=config.depth_normalization,
-            point_pipeline=config.point_pipeline,
-            point_normalization=config.point_normalization,
-            workspace_jitter=config.workspace_jitter,
-            augment=config.augment,
-        )
+        self.adapter = ObservationAdapter(config.adapter_config())
         options = config.encoder_options()
         self.encoder = make_encoder(config.encoder, config.obs_space, output=output, dim=dim, **options)
         self.out_dim = encoder_output(
