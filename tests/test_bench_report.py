@@ -482,3 +482,20 @@ def test_aggregate_intervals_do_not_depend_on_the_global_numpy_state():
     expected_next = np.random.RandomState(2).random_sample()
     assert aggregate_estimates(scores) == first
     assert np.random.random_sample() == expected_next
+
+
+def test_a_setting_that_differs_only_from_task_to_task_keeps_one_column():
+    """The grid gives each task its own point-cloud crop box (policy_overrides.workspace): one method across
+    tasks, not one column per task; the same field varied within a task still splits the method."""
+    records = []
+    for task, box in (("T1", [0, 1, 0, 1, 0, 1]), ("T2", [0, 2, 0, 2, 0, 2])):
+        for seed in (0, 1):
+            view = record(f"{task}-{seed}", task, "pointcloud", 5 + seed, seed=seed)
+            view["config"]["policy_overrides"] = {"workspace": box}
+            records.append(view)
+    cells = cells_by_task(records)
+    assert set(cells["T1"]) == set(cells["T2"]) == {"obs_act/pointcloud/e"}
+    other = record("T1-wide", "T1", "pointcloud", 9, seed=0)
+    other["config"]["policy_overrides"] = {"workspace": [0, 3, 0, 3, 0, 3]}
+    split = cells_by_task([*records, other])
+    assert [cell.seeds for cell in split["T1"].values()] == [2, 1] and len(split["T2"]) == 1

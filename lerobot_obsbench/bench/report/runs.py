@@ -52,18 +52,26 @@ def run_views(records: list[dict], checkpoint: str = "best") -> list[dict]:
 
 def method_labels(records: list[dict]) -> dict[str, str]:
     """run_id -> column label: policy/space/encoder, plus every run-config field (but NOT_LABEL_FIELDS) that
-    varies within that method."""
+    varies within that method on one task. A field that differs only from task to task (a task's own crop box)
+    belongs to the task, so the method stays one column across tasks."""
     by_method = defaultdict(list)
     for r in records:
         by_method[r["method"]].append(r)
     labels = {}
     for method, group in by_method.items():
         fields = dict.fromkeys(f for g in group for f in g["config"] if f not in NOT_LABEL_FIELDS)
-        varying = [f for f in fields if len({json.dumps(g["config"].get(f), sort_keys=True) for g in group}) > 1]
+        by_task = defaultdict(list)
+        for g in group:
+            by_task[g["task"]].append(g)
+        varying = [f for f in fields if any(_differs(runs, f) for runs in by_task.values())]
         for r in group:
             suffix = " ".join(f"{f}={_short(r['config'].get(f))}" for f in varying)
             labels[r["run_id"]] = f"{method} {suffix}".strip()
     return labels
+
+
+def _differs(runs: list[dict], field: str) -> bool:
+    return len({json.dumps(r["config"].get(field), sort_keys=True) for r in runs}) > 1
 
 
 def _short(value) -> str:
