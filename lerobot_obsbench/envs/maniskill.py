@@ -35,7 +35,12 @@ from lerobot_obsbench.envs.base_task import (
     task_spec,
     to_numpy,
 )
-from lerobot_obsbench.envs.perturbations import apply_scene_perturbation, camera_overrides, parse_perturbation
+from lerobot_obsbench.envs.perturbations import (
+    Perturbation,
+    apply_scene_perturbation,
+    camera_overrides,
+    parse_perturbation,
+)
 from lerobot_obsbench.errors import ConfigError, ObsBenchError, UsageError
 from lerobot_obsbench.schema import (
     ENV_STATE_KEY,
@@ -157,6 +162,82 @@ def check_sim_backend(sim_backend: str | None, num_envs: int, render_device: str
     return sim_backend
 
 
+def check_env_options(control_mode: str, image_size: int) -> None:
+    """Refuse a controller or an image size ManiSkill cannot run, before the slow import of ManiSkill."""
+    if control_mode not in CONTROL_MODES:
+        raise ConfigError(f"control_mode must be one of {CONTROL_MODES}; got {control_mode!r}")
+    if not isinstance(image_size, int) or image_size < MIN_IMAGE_SIZE:
+        raise ConfigError(f"image_size must be a whole number of pixels >= {MIN_IMAGE_SIZE}; got {image_size!r}")
+
+
+def import_task(spec, asset_dir: str | None) -> None:
+    """Import ManiSkill pointed at `asset_dir` and refuse a task whose assets are not there, naming how to fetch
+    them, since ManiSkill would otherwise fail deep inside scene loading."""
+    import_maniskill(asset_dir)
+    if missing_assets(spec):
+        raise TaskError(asset_help(spec, asset_dir or os.environ.get("MS_ASSET_DIR")))
+
+
+def check_perturbation(perturbation: Perturbation | None, num_envs: int) -> Perturbation | None:
+    """Refuse the noise perturbation in a batched env: it renders with ray tracing, which ManiSkill runs for one
+    env per process only."""
+    if num_envs > 1 and perturbation and perturbation.kind == "noise":
+        raise UsageError(
+            f"{perturbation.name} renders with ray tracing, which ManiSkill runs for one env per process "
+            "only: evaluate it with num_envs=1 (lockstep on CPU workers: --policy.device=cpu)."
+        )
+    return perturbation
+
+
+def task_sensor_configs(spec, image_size: int) -> dict:
+    """ManiSkill's `sensor_configs` for a task: every camera at `image_size`, and the task's own `base_camera`
+    (pose and field of view) in place of ManiSkill's where the task sets one to frame its workspace."""
+    configs = dict(width=image_size, height=image_size)
+    if spec.camera is not None:
+        from mani_skill.utils import sapien_utils
+
+        eye, target, fov = spec.camera
+        configs["base_camera"] = {"pose": sapien_utils.look_at(list(eye), list(target)), "fov": fov}
+    return configs
+
+
+def use_ray_tracing(samples_per_pixel: int, sensor_configs: dict) -> None:
+    """Render the cameras with ray tracing at `samples_per_pixel` and no denoiser (the noise perturbation): the
+    Monte-Carlo noise left in the colour image is the perturbation. SAPIEN's sampling settings are global, so
+    they hold for every env this process makes afterwards."""
+    import sapien
+
+    sapien.render.set_ray_tracing_samples_per_pixel(samples_per_pixel)
+    sapien.render.set_ray_tracing_denoiser("none")
+    sensor_configs["shader_pack"] = "rt"
+
+
+def observation_space(spec, cameras: list[str], image_size: int) -> gym.spaces.Dict:
+    """The gym space of what `ObsBenchEnv.reset/step` return (the keys of the module docstring): each read
+    camera's colour, depth and calibration, the robot state, the task's object poses and goal where it has them."""
+    size = (image_size, image_size)
+    privileged = {}
+    if spec.privileged_actors:
+        shape = (len(spec.privileged_actors) * POSE_SIZE,)
+        privileged["privileged_state"] = gym.spaces.Box(-np.inf, np.inf, shape, np.float32)
+    spaces = {
+        "pixels": gym.spaces.Dict({c: gym.spaces.Box(0, 255, (*size, 3), np.uint8) for c in cameras}),
+        "agent_pos": gym.spaces.Box(-np.inf, np.inf, (STATE_DIM,), np.float32),
+        "robot_state": gym.spaces.Dict(
+            {
+                **{f"depth.{c}": gym.spaces.Box(0, 65535, (*size, 1), np.uint16) for c in cameras},
+                **{f"intrinsics.{c}": gym.spaces.Box(-np.inf, np.inf, (3, 3), np.float32) for c in cameras},
+                **{f"cam2world.{c}": gym.spaces.Box(-np.inf, np.inf, (4, 4), np.float32) for c in cameras},
+                **privileged,
+            }
+        ),
+    }
+    goal_dim = sum(spec.goal.values())
+    if goal_dim:
+        spaces["environment_state"] = gym.spaces.Box(-np.inf, np.inf, (goal_dim,), np.float32)
+    return gym.spaces.Dict(spaces)
+
+
 class ObsBenchEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": CONTROL_FPS}
 
@@ -180,13 +261,8 @@ class ObsBenchEnv(gym.Env):
         # CPU-only machine gets no "CUDA not found, falling back" warning.
         self.render_backend = render_backend(device)
         self.num_envs, self.sim_backend = num_envs, check_sim_backend(sim_backend, num_envs, self.render_backend)
-        if control_mode not in CONTROL_MODES:
-            raise ConfigError(f"control_mode must be one of {CONTROL_MODES}; got {control_mode!r}")
-        if not isinstance(image_size, int) or image_size < MIN_IMAGE_SIZE:
-            raise ConfigError(f"image_size must be a whole number of pixels >= {MIN_IMAGE_SIZE}; got {image_size!r}")
-        import_maniskill(asset_dir)
-        if missing_assets(spec):
-            raise TaskError(asset_help(spec, asset_dir or os.environ.get("MS_ASSET_DIR")))
+        check_env_options(control_mode, image_size)
+        import_task(spec, asset_dir)
         self.spec_ = spec
         self.cameras = list(cameras)
         self.image_size = image_size
@@ -194,58 +270,30 @@ class ObsBenchEnv(gym.Env):
         self.task = spec.description
         self.task_description = spec.description
         self._next_seed = seed
-        self.perturbation = parse_perturbation(perturbation)
-        if num_envs > 1 and self.perturbation and self.perturbation.kind == "noise":
-            raise UsageError(
-                f"{self.perturbation.name} renders with ray tracing, which ManiSkill runs for one env per process "
-                "only: evaluate it with num_envs=1 (lockstep on CPU workers: --policy.device=cpu)."
-            )
-        sensor_configs = dict(width=image_size, height=image_size)
-        if spec.camera is not None:
-            from mani_skill.utils import sapien_utils
-
-            eye, target, fov = spec.camera
-            sensor_configs["base_camera"] = {"pose": sapien_utils.look_at(list(eye), list(target)), "fov": fov}
+        self.perturbation = check_perturbation(parse_perturbation(perturbation), num_envs)
+        configs = task_sensor_configs(spec, image_size)
         if self.perturbation and self.perturbation.kind == "noise":
-            import sapien
-
-            sapien.render.set_ray_tracing_samples_per_pixel(int(self.perturbation.scalar))
-            sapien.render.set_ray_tracing_denoiser("none")
-            sensor_configs["shader_pack"] = "rt"
-        self._make(control_mode, sensor_configs, episode_length or spec.max_steps)
+            use_ray_tracing(int(self.perturbation.scalar), configs)
+        max_steps = episode_length or spec.max_steps
+        self._make(control_mode, configs, max_steps)
         if self.perturbation and self.perturbation.kind.startswith("camera"):
-            moved = camera_overrides(self._env.unwrapped, self.cameras, self.perturbation, spec.camera)
-            for cam, config in moved.items():
-                sensor_configs[cam] = {**sensor_configs.get(cam, {}), **config}
-            self._env.close()
-            self._make(control_mode, sensor_configs, episode_length or spec.max_steps)
+            self._move_cameras(control_mode, configs, max_steps)
         if self.perturbation and self.perturbation.kind in ("light", "background"):
             apply_scene_perturbation(self._env.unwrapped, self.perturbation)
         self.unwrapped_ms = self._env.unwrapped
         self.device = self.unwrapped_ms.device  # where reset_all / step_all keep their tensors
         self.action_space = gym.spaces.Box(-1.0, 1.0, self.unwrapped_ms.single_action_space.shape, np.float32)
-        goal_dim = sum(spec.goal.values())
-        size = (image_size, image_size)
-        privileged = {}
-        if spec.privileged_actors:
-            shape = (len(spec.privileged_actors) * POSE_SIZE,)
-            privileged["privileged_state"] = gym.spaces.Box(-np.inf, np.inf, shape, np.float32)
-        spaces = {
-            "pixels": gym.spaces.Dict({c: gym.spaces.Box(0, 255, (*size, 3), np.uint8) for c in self.cameras}),
-            "agent_pos": gym.spaces.Box(-np.inf, np.inf, (STATE_DIM,), np.float32),
-            "robot_state": gym.spaces.Dict(
-                {
-                    **{f"depth.{c}": gym.spaces.Box(0, 65535, (*size, 1), np.uint16) for c in self.cameras},
-                    **{f"intrinsics.{c}": gym.spaces.Box(-np.inf, np.inf, (3, 3), np.float32) for c in self.cameras},
-                    **{f"cam2world.{c}": gym.spaces.Box(-np.inf, np.inf, (4, 4), np.float32) for c in self.cameras},
-                    **privileged,
-                }
-            ),
-        }
-        if goal_dim:
-            spaces["environment_state"] = gym.spaces.Box(-np.inf, np.inf, (goal_dim,), np.float32)
-        self.observation_space = gym.spaces.Dict(spaces)
+        self.observation_space = observation_space(spec, self.cameras, image_size)
         self._milestones: dict[str, bool] = {}
+
+    def _move_cameras(self, control_mode: str, sensor_configs: dict, max_steps: int) -> None:
+        """Rebuild the env with its cameras moved by the camera perturbation: a camera's look-at point is known only
+        once ManiSkill has built it, and sensors are fixed when the env is made, so the first env is replaced."""
+        moved = camera_overrides(self._env.unwrapped, self.cameras, self.perturbation, self.spec_.camera)
+        for cam, config in moved.items():
+            sensor_configs[cam] = {**sensor_configs.get(cam, {}), **config}
+        self._env.close()
+        self._make(control_mode, sensor_configs, max_steps)
 
     def _make(self, control_mode: str, sensor_configs: dict, max_steps: int) -> None:
         try:
