@@ -101,3 +101,22 @@ def test_unread_wrist_camera_is_neither_rendered_nor_drawn(task):
     finally:
         base_only.close()
         both.close()
+
+
+def test_a_camera_move_moves_the_scene_camera_and_leaves_the_wrist_camera_on_the_hand():
+    """camera_yaw with both of StackCube's cameras: the base camera orbits; the wrist camera, which has no
+    look-at point in the scene, keeps its pose on the hand."""
+    still = ObsBenchEnv("StackCube-v1", image_size=SIZE, cameras=("base_camera", "hand_camera"))
+    moved = ObsBenchEnv(
+        "StackCube-v1", image_size=SIZE, cameras=("base_camera", "hand_camera"), perturbation="camera_yaw:10"
+    )
+    try:
+        poses = []
+        for env in (still, moved):
+            obs, _ = env.reset(seed=0)
+            poses.append({cam: obs["robot_state"][f"cam2world.{cam}"] for cam in ("base_camera", "hand_camera")})
+        assert not np.allclose(poses[0]["base_camera"], poses[1]["base_camera"], atol=1e-3)
+        np.testing.assert_allclose(poses[0]["hand_camera"], poses[1]["hand_camera"], atol=1e-6)
+    finally:
+        still.close()
+        moved.close()

@@ -125,8 +125,9 @@ def capture_look_at(ms_env) -> dict[str, tuple[np.ndarray, np.ndarray]]:
 
 
 def camera_overrides(ms_env, cameras, perturbation: Perturbation, task_camera=None) -> dict:
-    """`sensor_configs` entries moving each camera for a camera perturbation; `task_camera` (eye, target, fov):
-    the task's own `base_camera`, moved instead of ManiSkill's."""
+    """`sensor_configs` entries moving each scene camera for a camera perturbation; `task_camera` (eye, target,
+    fov): the task's own `base_camera`, moved instead of ManiSkill's. A camera mounted on the robot (a wrist
+    camera) has no look-at point in the scene and stays where the hand carries it."""
     from mani_skill.utils import sapien_utils
 
     yaw = perturbation.scalar if perturbation.kind == "camera_yaw" else 0.0
@@ -137,6 +138,7 @@ def camera_overrides(ms_env, cameras, perturbation: Perturbation, task_camera=No
     return {
         cam: {"pose": sapien_utils.look_at(orbit_eye(*looks[cam], yaw, pitch).tolist(), looks[cam][1].tolist())}
         for cam in cameras
+        if cam in looks
     }
 
 
