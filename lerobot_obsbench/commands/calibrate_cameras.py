@@ -95,8 +95,8 @@ def run(args: argparse.Namespace) -> int:
     camera.connect()
     try:
         images = []
-        # a recording is read as fast as the machine registers its frames, so only a live camera's frame rate
-        # bounds the wait
+        # a recording has no frame period to miss (it ends rather than stalls), so a reader thread slowed by a
+        # loaded machine may take longer than a live camera's 2 s without anything being wrong
         timeout_ms = 30_000 if args.playback else 2000
         for _ in range(args.views):
             images.append(camera.async_read(timeout_ms=timeout_ms))
