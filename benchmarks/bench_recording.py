@@ -32,7 +32,7 @@ def leader_trajectory(i: int) -> dict[str, float]:
 
 
 class _MonkeyPatch:
-    """pytest's monkeypatch.setattr, enough for tests.fake_hardware.install outside pytest."""
+    """pytest's monkeypatch.setattr, enough for tests.support.fake_hardware.install outside pytest."""
 
     def setattr(self, target, name, value):
         setattr(target, name, value)
@@ -56,8 +56,8 @@ def main() -> None:
     from lerobot_obsbench.robots.extrinsics import CameraExtrinsics, save_extrinsics
     from lerobot_obsbench.robots.koch.config_koch_arm import KochFollowerArmConfig, KochLeaderArmConfig
     from lerobot_obsbench.robots.realsense.config_realsense_rgbd import RealSenseRGBDCameraConfig
-    from tests import fake_hardware
-    from tests.realsense_synthetic import StreamSpec, SyntheticRGBD, write_bag
+    from tests.support import fake_hardware
+    from tests.support.realsense_synthetic import StreamSpec, SyntheticRGBD, write_bag
 
     synthetic = load_synthetic()
     fake_hardware.install(_MonkeyPatch())

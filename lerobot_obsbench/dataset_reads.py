@@ -10,7 +10,7 @@ the plugin's policies do — gets instead, under stock `lerobot-train`:
 2. **decoded once**: when they fit `OBSBENCH_DATASET_MEMORY_MB` (default 2048 MiB, estimated from the features
    before anything is decoded), the read columns and every frame of the read videos are decoded into memory when
    the dataset is loaded, and each sample is then served from memory. Every served value is the one LeRobot's
-   reader returns for that index (same frames, dtypes and shapes: `tests/test_dataset_reads.py`). The cache
+   reader returns for that index (same frames, dtypes and shapes: `tests/core/test_dataset_reads.py`). The cache
    lives in the training process (DataLoader workers, which lerobot-train spawns, each unpickle their own copy)
    and nothing is written to the dataset; a dataset over the budget is streamed with only the read keys, with
    one log line saying so.

@@ -16,7 +16,7 @@ DEMO_FRAMES_PER_EPISODE = 30  # for estimates before the demonstrations exist
 
 # Training samples per second by (device kind, preset) and space kind, for `--dry-run` estimates and a grid's ETA
 # until a run reports its own rate. Which machine measured each figure, and which figures are bounds:
-# docs/performance.md#the-cost-model; tests/test_bench_grid.py holds the measured ones to their benchmark's JSON.
+# docs/performance.md#the-cost-model; tests/bench/test_bench_grid.py holds the measured ones to their benchmark's JSON.
 TRAIN_SAMPLES_PER_SECOND = {
     ("cpu", "tiny"): {"image": 100.0, "point": 100.0, "none": 200.0},
     ("cpu", "cpu"): {"image": 170.0, "point": 360.0, "none": 750.0},

@@ -67,7 +67,7 @@ def charuco_corner_offset_px(opencv_version: str = cv2.__version__) -> float:
     OpenCV 4.7 to 4.13 shift the corners by -0.5 px before `cornerSubPix` and add the 0.5 px back after it, but
     `cornerSubPix` converges to the image's saddle point wherever it starts, so each returned corner is the true
     one + (0.5, 0.5) px (opencv/opencv issue 25539, fixed by pull request 28380 for 4.14.0). Measured on
-    supersampled renders of the paper's board (tests/test_extrinsics.py): mean (+0.49, +0.50) px in 4.7.0 and
+    supersampled renders of the paper's board (tests/robots/test_extrinsics.py): mean (+0.49, +0.50) px in 4.7.0 and
     (+0.49, +0.48) px in 4.10.0, 4.12.0 and 4.13.0; (-0.01, -0.00) px in 4.14.0 and 5.0.0. Left in, the shift
     turns the camera ~0.03 degrees about its centre (the board moves 0.3-0.6 mm in the camera frame at 0.4-0.8 m,
     1280x720): every world point then projects ~0.5 px off in that camera."""

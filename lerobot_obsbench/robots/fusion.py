@@ -7,7 +7,7 @@ they overlap, which doubles edges in the fused cloud. The refinement aligns the 
 coloured ICP (Park, Zhou and Koltun 2017, as Open3D implements it) coarse to fine on voxel-sampled clouds brings
 them together from the calibration's start, and a last point-to-plane ICP on the full-resolution clouds removes
 what voxel averaging leaves (on renders, a 5 mm / 0.5 degree error came back to 0.07 mm / 0.003 degrees from each
-of six random directions in an exploratory run; tests/test_fusion.py holds it under 1 mm / 0.1 degrees). A
+of six random directions in an exploratory run; tests/robots/test_fusion.py holds it under 1 mm / 0.1 degrees). A
 correction larger than a calibration can be off by, or too little overlap, is refused rather than applied: ICP
 then converged somewhere wrong.
 """

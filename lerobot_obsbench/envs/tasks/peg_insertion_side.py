@@ -17,7 +17,7 @@ more often than it succeeds (docs/simulation.md#tasks), so recording screens see
 
 **OBSBench's camera and crop box:** ManiSkill's camera stands at the back edge of the peg's region looking
 along the table, so a peg near it falls out of the frame in about a third of the episodes; the task camera looks
-across both regions from the front, and point clouds are cropped to them (tests/test_task_cameras.py checks both).
+across both regions from the front, and point clouds are cropped to them (tests/envs/test_task_cameras.py checks both).
 """
 
 from __future__ import annotations

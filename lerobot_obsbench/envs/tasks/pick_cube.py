@@ -14,7 +14,7 @@ Its success rate: docs/simulation.md#tasks.
 **OBSBench's camera and crop box:** ManiSkill's camera shows the cube as ~6 pixels of a 64² frame; the task camera
 looks at the spawn square from closer, and point clouds are cropped to the square and the air above it up to the
 highest goal (the clouds hold what of it the camera sees: a cube carried to the highest goals leaves the frame;
-tests/test_task_cameras.py checks the start of every episode).
+tests/envs/test_task_cameras.py checks the start of every episode).
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ Its success rate: docs/simulation.md#tasks.
 
 **OBSBench's camera and crop box:** ManiSkill's camera (0.6 m away, 90° field of view) shows a cube as ~6 pixels of
 a 64² frame and loses it behind the hand in some episodes; the task camera looks down from the +x, +y side at
-the cubes' spawn region, and point clouds are cropped to that region (tests/test_task_cameras.py checks both).
+the cubes' spawn region, and point clouds are cropped to that region (tests/envs/test_task_cameras.py checks both).
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ Why not librealsense's `rs.align`: it writes each depth pixel's own z (the depth
 covers, which is the colour camera's z only when the depth -> colour extrinsic is a pure x-baseline. With a
 D400's real extrinsic (a fraction of a degree of rotation, millimetres of offset) it is off by millimetres on a
 slanted surface, and its nearest-pixel splat stays off even with its z corrected for the rotation; the
-registration here is within 1 mm (docs/real-robot.md, asserted by tests/test_realsense.py).
+registration here is within 1 mm (docs/real-robot.md, asserted by tests/robots/test_realsense.py).
 
 Needs `pyrealsense2` (`pip install 'lerobot_policy_obsbench[realsense]'`; on Linux also Debian's `libusb-1.0-0`).
 """

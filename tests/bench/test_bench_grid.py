@@ -1,0 +1,557 @@
+"""Grid files: presets expand and validate; bad grids fail before anything runs, naming the valid choices."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+import yaml
+
+from lerobot_obsbench.bench.grid import EvalSpec, GridError, RunSpec, load_grid, parse_grid, preset_grids
+from lerobot_obsbench.bench.results import append_result
+from lerobot_obsbench.bench.units import demo_dir, train_command
+from lerobot_obsbench.cli import main
+from lerobot_obsbench.envs.base_task import task_spec
+from lerobot_obsbench.envs.perturbations import orbit_eye, parse_perturbation
+from tests.support.paths import REPO_ROOT
+
+BASE = {"tasks": ["PushCube-v1"], "obs_spaces": ["rgb", "pointcloud"], "steps": 10, "preset": "tiny"}
+
+
+def test_presets_expand_and_validate():
+    assert {"quick", "paper-main", "paper-sample-efficiency", "paper-generalization", "paper-design"} <= set(
+        preset_grids()
+    )
+    sizes = {}
+    for name in preset_grids():
+        runs = load_grid(name).expand()
+        assert runs, name
+        assert len({r.run_id for r in runs}) == len(runs), f"{name}: two runs share an id"
+        sizes[name] = runs
+    # paper-main: 3 tasks x 7 (space, encoder) pairs of Table 2 x 2 policies x 3 lrs x 2 seeds (each lr twice)
+    assert len(sizes["paper-main"]) == 3 * 7 * 2 * 3 * 2
+    pairs = {(r.obs_space, r.encoder) for r in sizes["paper-main"]}
+    assert pairs == {
+        ("rgb", "resnet50"),
+        ("rgb", "vit_b"),
+        ("rgbd", "resnet50"),
+        ("rgbd", "vit_b"),
+        ("rgbd", "multivit_b"),
+        ("pointcloud", "pointnet"),
+        ("pointcloud", "spunet34"),
+    }
+    assert {r.demos for r in sizes["paper-sample-efficiency"]} == {10, 25, 100}
+    main_grid = load_grid("paper-main")
+    assert all(r.preset == "paper" and r.demos == 1000 for r in sizes["paper-main"])
+    assert {len(main_grid.evaluations(r)) for r in sizes["paper-main"]} == {2}  # last and best-on-validation
+    assert {s.episodes for r in sizes["paper-main"] for s in main_grid.evaluations(r)} == {400}
+    generalization = load_grid("paper-generalization")
+    assert len(generalization.perturbations) == 20 and generalization.checkpoints_from
+    # an evaluation-only grid names runs of the training grid: the same training identities
+    assert {r.run_id for r in sizes["paper-generalization"]} <= {r.run_id for r in sizes["paper-main"]}
+    quick = sizes["quick"]
+    # the two controls bracket two seeing spaces
+    assert {"none", "state", "rgb", "pointcloud"} <= {r.obs_space for r in quick}
+    quick_grid = load_grid("quick")
+    moved = {"none", "camera_yaw:10", "camera_pitch:10"}
+    for r in quick:  # the camera moves only for the spaces that read it
+        expected = {"none"} if r.obs_space in ("none", "state") else moved
+        assert {s.perturbation for s in quick_grid.evaluations(r)} == expected
+    # the crop box of the task reaches its point-cloud runs, and only them
+    workspaces = {r.obs_space: dict(r.policy_overrides).get("workspace") for r in quick}
+    assert workspaces["pointcloud"] == [-0.2, 0.45, -0.35, 0.35, 0.005, 0.1] and workspaces["rgb"] is None
+    assert quick_grid.held_out_demos > 0
+
+
+def test_variants_are_an_axis_and_a_column_label():
+    runs = parse_grid(
+        {**BASE, "obs_spaces": ["pointcloud"], "variants": [{}, {"sampling": "pre"}, {"point_features": "xyz"}]}
+    ).expand()
+    assert [dict(r.policy_overrides) for r in runs] == [{}, {"sampling": "pre"}, {"point_features": "xyz"}]
+    assert len({r.run_id for r in runs}) == 3
+
+
+def test_augmentations_are_an_axis_per_space_whose_unaugmented_runs_keep_their_ids(tmp_path):
+    plain = parse_grid(BASE).expand()
+    grid = parse_grid({**BASE, "augmentations": {"rgb": ["", "random_shift+colour_jitter"]}})
+    runs = grid.expand()
+    assert [(r.obs_space, r.augment) for r in runs] == [
+        ("rgb", ""),
+        ("rgb", "random_shift+colour_jitter"),
+        ("pointcloud", ""),
+    ]
+    assert {r.run_id for r in plain} == {r.run_id for r in runs if not r.augment}  # finished runs are reused
+    augmented = runs[1]
+    assert augmented.method == "obs_act/rgb/resnet18/random_shift+colour_jitter"
+    assert "augment" not in runs[0].config() and RunSpec.from_config(augmented.config()) == augmented
+    command = train_command(augmented, tmp_path / "demos", tmp_path / "run", 10, "cpu", 5)
+    assert "--policy.augment=random_shift+colour_jitter" in command
+
+
+def test_space_overrides_set_fields_for_one_space_only():
+    plain = {r.obs_space: r for r in parse_grid({**BASE, "obs_spaces": ["rgb", "pointcloud"]}).expand()}
+    grid = {
+        **BASE,
+        "obs_spaces": ["rgb", "pointcloud"],
+        "encoders": {"rgb": ["spatial_softmax"], "pointcloud": ["dp3"]},
+        "space_overrides": {"rgb": {"encoder_norm": "batch"}},
+    }
+    runs = {r.obs_space: r for r in parse_grid(grid).expand()}
+    assert dict(runs["rgb"].policy_overrides) == {"encoder_norm": "batch"}
+    assert "encoder_norm" not in dict(runs["pointcloud"].policy_overrides)
+    assert "--policy.encoder_norm=batch" in runs["rgb"].policy_args()
+    no_override = {**grid, "space_overrides": {}}
+    assert {r.obs_space: r.run_id for r in parse_grid(no_override).expand()}["pointcloud"] == runs["pointcloud"].run_id
+    assert plain["rgb"].run_id != runs["rgb"].run_id
+
+
+def test_run_id_is_a_hash_of_the_resolved_config():
+    a, b = parse_grid({**BASE, "learning_rates": [1e-4, 1e-3]}).expand()[:2]
+    assert a.run_id != b.run_id and a.lr != b.lr
+    again = parse_grid({**BASE, "learning_rates": [1e-4, 1e-3]}).expand()[0]
+    assert again.run_id == a.run_id
+    assert RunSpec.from_config(a.config()) == a
+
+
+@pytest.mark.parametrize(
+    "change, words",
+    [
+        ({"tasks": ["PickCube-v9"]}, ["PickCube-v9", "PickCube-v1", "StackCube-v1"]),
+        ({"obs_spaces": ["rgbdd"]}, ["rgbdd", "pointcloud", "pointmap"]),
+        ({"encoders": ["resnet5"]}, ["resnet5", "pointnet", "resnet50"]),
+        ({"encoders": {"rgb": ["pointnet"]}}, ["pointnet", "rgb", "resnet18"]),
+        ({"encoders": ["resnet18"]}, ["pointcloud", "pointnet"]),
+        ({"obs_spaces": ["pointcloud"], "encoders": ["pointnet", "resnet18"]}, ["resnet18", "accepts none"]),
+        ({"policies": ["obs_vqbet"]}, ["obs_vqbet", "obs_act", "obs_diffusion"]),
+        ({"preset": "huge"}, ["huge", "paper", "cpu", "tiny"]),
+        ({"stepz": 3}, ["stepz", "steps", "demo_epochs"]),
+        ({"epochs": 3}, ["`epochs` is ambiguous", "demo_epochs", "frame_epochs"]),
+        ({"demo_epochs": 3}, ["exactly one", "steps", "samples", "demo_epochs", "one randomly sampled frame"]),
+        ({"steps": {"obs_diffusion": 3}}, ["obs_diffusion", "valid choices: obs_act"]),
+        ({"batch_size": {"obs_act": 0}}, ["batch_size of obs_act", ">= 1"]),
+        ({"perturbations": ["lighting:0.3"]}, ["lighting:0.3", "camera_yaw:DEG", "light:I"]),
+        ({"perturbations": ["background:2,0,0"]}, ["background:2,0,0", "[0, 1]"]),
+        ({"variants": [{}, {"sampling": "pre"}]}, ["obs_act/rgb/resnet18", "sampling='pre'", "point-cloud design"]),
+        ({"policy_overrides": {"chunk_sise": 5}}, ["no fields ['chunk_sise']"]),
+        ({"seeds": []}, ["'seeds' is empty"]),
+        ({"augmentations": {"rgb": ["point_jitter"]}}, ["augmentations.rgb", "does not apply", "random_shift"]),
+        ({"augmentations": {"rgb": ["random_shfit"]}}, ["unknown augmentation 'random_shfit'", "colour_jitter"]),
+        ({"augmentations": {"depth": ["random_shift"]}}, ["augmentations names spaces ['depth']"]),
+        ({"augmentations": {"rgb": ["", None]}}, ["lists a recipe twice"]),
+        ({"augmentations": ["random_shift"]}, ["maps spaces to recipes"]),
+        ({"policy_overrides": {"augment": "random_shift"}}, ["sets --policy.augment", "augmentations"]),
+        ({"space_overrides": {"depth": {"encoder_norm": "batch"}}}, ["space_overrides names spaces ['depth']"]),
+        ({"space_overrides": {"rgb": {"encoder": "resnet50"}}}, ["space_overrides.rgb sets --policy.encoder"]),
+        ({"space_overrides": {"rgb": ["batch"]}}, ["space_overrides maps spaces to --policy.* fields"]),
+        (
+            {"space_overrides": {"rgb": {"encoder_norm": "batch"}}},
+            ["encoder_norm='batch' is not an option", "resnet18"],
+        ),
+    ],
+)
+def test_bad_grids_fail_with_the_valid_choices(change, words):
+    with pytest.raises(GridError) as err:
+        parse_grid({**BASE, **change})
+    for word in words:
+        assert word in str(err.value)
+
+
+@pytest.mark.parametrize(
+    "field, text, message",
+    [
+        ("steps", "-5", "steps must be a finite number > 0; got -5"),
+        ("steps", ".nan", "steps must be a finite number > 0; got nan"),
+        ("steps", "'x'", "steps must be a finite number > 0; got 'x'"),
+        ("image_size", "16", "image_size must be a whole number >= 32; got 16"),
+        ("image_size", "'64'", "image_size must be a whole number >= 32; got '64'"),
+        ("seeds", "a", "seeds must be a whole number >= 0; got 'a'"),
+        ("seeds", "[1000, 1.5]", "seeds[1] must be a whole number >= 0; got 1.5"),
+        ("demos", "[0]", "demos[0] must be a whole number >= 1; got 0"),
+        ("learning_rates", "[.inf]", "learning_rates[0] must be a finite number > 0; got inf"),
+        ("eval_episodes", "1.5", "eval_episodes must be a whole number >= 1; got 1.5"),
+        ("episode_length", "0", "episode_length must be a whole number >= 1; got 0"),
+        ("validation_episodes", "-1", "validation_episodes must be a whole number >= 0; got -1"),
+        ("batch_size", "true", "batch_size must be a whole number >= 1; got True"),
+        ("eval_batch_size", "0", "eval_batch_size must be a whole number >= 1; got 0"),
+        ("cameras", "base_camera", "cameras is a list of names"),
+    ],
+)
+def test_bad_grid_values_are_refused_by_the_dry_run(tmp_path, capsys, field, text, message):
+    """Each value is refused before anything runs: no demos, no output directory."""
+    lines = {"tasks": "[PushCube-v1]", "obs_spaces": "[rgb]", "steps": "5", field: text}
+    grid = tmp_path / "bad.yaml"
+    grid.write_text("".join(f"{key}: {value}\n" for key, value in lines.items()))
+    assert main(["run", str(grid), "--out", str(tmp_path / "out"), "--dry-run"]) == 2
+    assert f"obsbench run: error: bad: {message}" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def test_bad_grid_fails_before_anything_runs(tmp_path, capsys):
+    grid = tmp_path / "bad.yaml"
+    grid.write_text("tasks: [PushCube-v1]\nobs_spaces: [rgb]\nencoders: {rgb: [pointnet]}\nsteps: 5\n")
+    assert main(["run", str(grid), "--out", str(tmp_path / "out")]) == 2
+    assert "does not accept obs_space='rgb'" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def test_dry_run_prints_the_plan_and_skips_finished_runs(tmp_path, capsys):
+    grid = tmp_path / "g.yaml"
+    grid.write_text(
+        "tasks: [PushCube-v1]\nobs_spaces: [rgb, pointcloud]\nseeds: [1, 2]\nsteps: 5\npreset: tiny\neval_episodes: 3\n"
+    )
+    assert main(["run", str(grid), "--out", str(tmp_path), "--dry-run"]) == 0
+    text = capsys.readouterr().out
+    assert "4 runs, 0 already trained, 4 to train; 0 of 4 test evaluations done" in text
+    assert "one training seed" not in text
+    runs = load_grid(grid).expand()
+    train = {
+        "kind": "train",
+        "run_id": runs[0].run_id,
+        "config": runs[0].config(),
+        "method": runs[0].method,
+        "task": runs[0].task,
+        "checkpoint": "ckpt",
+        "checkpoints": {"5": "ckpt"},
+        "train_steps": 5,
+    }
+    append_result(tmp_path / "results.jsonl", train)
+    assert main(["run", str(grid), "--out", str(tmp_path), "--dry-run"]) == 0
+    assert "4 runs, 1 already trained, 3 to train; 0 of 4 test evaluations done" in capsys.readouterr().out
+    assert not (tmp_path / "demos").exists()
+
+
+def test_dry_run_counts_steps_and_samples_in_the_papers_units(capsys):
+    """paper-main: one sampled frame per demonstration per epoch -> ACT 500 x 1000 / 16, DP 1800 x 1000 / 64."""
+    assert main(["run", "paper-main", "--dry-run", "--out", "/nonexistent/out"]) == 0
+    text = capsys.readouterr().out
+    assert "batch 16  500 demo_epochs = 31250 steps, 500000 samples" in text
+    assert "batch 64  1800 demo_epochs = 28125 steps, 1800000 samples" in text
+    assert "total to do: 7481250 optimizer steps" in text
+    assert "demo_epochs = the paper's epochs: one randomly sampled frame per demonstration per epoch" in text
+    assert "h on a 2-core CPU" in text and "h on one H200 GPU" in text
+    assert "one training seed" not in text  # paper-main trains two seeds per learning rate
+
+
+def test_dry_run_warns_that_one_training_seed_cannot_show_training_variance(tmp_path, capsys):
+    (tmp_path / "one_seed.yaml").write_text(yaml.safe_dump({**BASE, "seeds": [1000]}))
+    assert main(["run", str(tmp_path / "one_seed.yaml"), "--dry-run", "--out", str(tmp_path / "out")]) == 0
+    assert "note: one training seed (1000)" in capsys.readouterr().out
+    assert main(["run", "quick", "--dry-run", "--out", "/nonexistent/out"]) == 0  # the main job trains three
+    assert "note: one training seed" not in capsys.readouterr().out
+
+
+def test_training_identity_leaves_out_evaluation_and_checkpointing():
+    base = parse_grid(BASE)
+    more = parse_grid(
+        {
+            **BASE,
+            "eval_episodes": 99,
+            "perturbations": ["light:0.03"],
+            "episode_length": 20,
+            "checkpoints": 7,
+            "validation_episodes": 5,
+        }
+    )
+    assert [r.run_id for r in base.expand()] == [r.run_id for r in more.expand()]
+    run = base.expand()[0]
+    assert [s.perturbation for s in more.evaluations(run)] == ["none", "light:0.03"] * 2
+    assert {s.checkpoint for s in more.evaluations(run)} == {"last", "best"}
+    assert {s.eval_id for s in base.evaluations(run)} < {s.eval_id for s in more.evaluations(run)} or all(
+        s.episodes == 99 for s in more.evaluations(run)
+    )
+    assert EvalSpec(**base.evaluations(run)[0].config()).eval_id == base.evaluations(run)[0].eval_id
+    assert base.evaluations(run)[0].max_steps == 50 and more.evaluations(run)[0].max_steps == 20
+
+
+def test_train_command_is_stock_lerobot_train_with_the_run_fields(tmp_path):
+    run = parse_grid(
+        {**BASE, "encoders": {"rgb": ["resnet18"]}, "demos": [7], "seeds": [5], "policy_overrides": {"chunk_size": 3}}
+    ).expand()[0]
+    cmd = train_command(run, tmp_path / "ds", tmp_path / "out", steps=10, device="cpu", save_every=5)
+    assert cmd[0].endswith("lerobot-train")
+    for arg in (
+        "--policy.type=obs_act",
+        "--policy.obs_space=rgb",
+        "--policy.encoder=resnet18",
+        "--seed=5",
+        "--steps=10",
+        "--save_freq=5",
+        "--dataset.episodes=[0,1,2,3,4,5,6]",
+        "--policy.chunk_size=3",
+        "--wandb.enable=false",
+    ):
+        assert arg in cmd
+    assert [a for a in cmd if a.startswith("--policy.encoder=")] == ["--policy.encoder=resnet18"]
+
+
+def test_orbit_keeps_distance_and_target():
+    eye, target = np.array([0.3, 0.0, 0.6]), np.array([-0.1, 0.0, 0.1])
+    yawed = orbit_eye(eye, target, yaw_deg=10)
+    raised = orbit_eye(eye, target, pitch_deg=10)
+    for moved in (yawed, raised):
+        assert np.linalg.norm(moved - target) == pytest.approx(np.linalg.norm(eye - target))
+    a, b = eye - target, yawed - target
+    assert np.degrees(np.arccos(a[:2] @ b[:2] / np.linalg.norm(a[:2]) / np.linalg.norm(b[:2]))) == pytest.approx(10)
+    assert yawed[2] == pytest.approx(eye[2])
+    a, b = eye - target, raised - target
+    assert np.degrees(np.arccos(a @ b / np.linalg.norm(a) / np.linalg.norm(b))) == pytest.approx(10)
+    assert raised[2] > eye[2]
+
+
+def test_perturbation_names_round_trip():
+    for text in ("camera_yaw:5", "light:0.03", "background:1,0.2,0.2", "noise:16"):
+        assert parse_perturbation(text).name == text
+    assert parse_perturbation("none") is None
+
+
+def test_training_progress_reads_the_total_loss_of_lerobot_061_logs(tmp_path):
+    """LeRobot 0.6.1 logs the loss terms after the total (`loss:0.130 ... l1_loss:0.130 kld_loss:0.000`): the
+    progress line shows the total."""
+    from lerobot_obsbench.bench.units import training_progress
+
+    run = tmp_path / "runs" / "r1"
+    run.mkdir(parents=True)
+    (run / "progress.json").write_text(json.dumps({"resumed_from": 0, "steps": 2000, "started": 0.0}))
+    (run / "train.log").write_text(
+        "Training:  96%|#########6| 1920/2000 [03:21<00:10,  7.60step/s]INFO ot_train.py:641 step:2K smpl:31K "
+        "loss:0.130 grdn:0.511 lr:8.4e-06 l1_loss:0.129 kld_loss:0.000\n"
+    )
+    assert training_progress(tmp_path, "r1") == {"step": 1920, "steps": 2000, "loss": 0.13, "started": 0.0}
+
+
+def test_loss_curve_numbers_lerobots_rounded_steps_from_the_log_frequency():
+    """From 1,000 on lerobot-train prints steps rounded to thousands ("step:1K" for 1020 and 1080 alike): each
+    such line is the next multiple of the log frequency, counted from where the run (re)started."""
+    from lerobot_obsbench.bench.diagnostics import loss_curve
+
+    def line(step: str, loss: float) -> str:
+        return f"Training:  5%|5| 1/9 [00:01<00:08]INFO ot_train.py:641 step:{step} smpl:9K loss:{loss} l1_loss:0.1\r"
+
+    log = "\n=== 2026-11-25T00:00:00+00:00 starting ===\n" + "".join(
+        line(step, loss) for step, loss in (("960", 0.5), ("1K", 0.4), ("1K", 0.35), ("1K", 0.3))
+    )
+    log += "\n=== 2026-11-25T00:10:00+00:00 resuming at step 1500 ===\n" + line("2K", 0.2) + line("2K", 0.1)
+    assert loss_curve(log, 60) == [[960, 0.5], [1020, 0.4], [1080, 0.35], [1140, 0.3], [1560, 0.2], [1620, 0.1]]
+
+
+# ---- RLBench tasks ----------------------------------------------------------------------------------------------
+
+RLBENCH = {"tasks": ["rlbench/open_drawer"], "obs_spaces": ["rgb", "pointcloud"], "steps": 10, "preset": "tiny"}
+
+
+def test_an_rlbench_grid_trains_on_the_front_camera_and_evaluates_by_rlbenchs_protocol():
+    grid = parse_grid({**RLBENCH, "rlbench_data": "data/rlbench", "clip_weights": "clip.pt"})
+    runs = grid.expand()
+    assert {r.cameras for r in runs} == {("front",)} and {r.image_size for r in runs} == {128}
+    assert {r.control_mode for r in runs} == {"ee_pose_planning"} and {r.language_goal for r in runs} == {
+        "clip_vit_b16"
+    }
+    assert {grid.max_steps(r) for r in runs} == {200}  # the paper's episode budget
+    workspaces = {r.obs_space: dict(r.policy_overrides).get("workspace") for r in runs}
+    assert workspaces == {"rgb": None, "pointcloud": [-0.3, 0.7, -0.5, 0.5, 0.76, 1.6]}
+    assert "/" not in runs[0].demo_key and runs[0].demo_key.endswith("-clip_vit_b16")
+    assert RunSpec.from_config(runs[0].config()) == runs[0]
+    # without the language goal: another dataset and other runs
+    plain = parse_grid({**RLBENCH, "rlbench_data": "data/rlbench"}).expand()
+    assert plain[0].run_id != runs[0].run_id and plain[0].demo_key != runs[0].demo_key
+    assert "language_goal" not in plain[0].config()  # left out at its default: ManiSkill runs keep their ids
+    assert "language_goal" not in parse_grid(BASE).expand()[0].config()
+
+
+@pytest.mark.parametrize(
+    "change, words",
+    [
+        ({}, ["rlbench_data: DIR", "DIR/train/<task>"]),
+        ({"tasks": ["rlbench/open_drawer", "PushCube-v1"]}, ["RLBench and ManiSkill tasks in one grid"]),
+        ({"tasks": ["rlbench/stack_blockz"]}, ["unknown RLBench task 'stack_blockz'", "open_drawer"]),
+        ({"cameras": ["base_camera"]}, ["cameras ['base_camera'] are not RLBench's", "front, left_shoulder"]),
+        ({"image_size": 64}, ["image_size 64", "128 x 128"]),
+        ({"control_mode": "pd_joint_pos"}, ["control_mode does not apply to RLBench tasks"]),
+        ({"held_out_demos": 5}, ["held_out_demos does not apply to RLBench tasks"]),
+        ({"eval_batch_size": 4}, ["eval_batch_size does not apply to RLBench tasks", "one episode at a time"]),
+        ({"perturbations": ["light:0.3"]}, ["'light:0.3' has no RLBench counterpart", "camera_pitch:5"]),
+    ],
+)
+def test_bad_rlbench_grids_are_refused(change, words):
+    data = {} if change == {} else {"rlbench_data": "data/rlbench"}
+    with pytest.raises(GridError) as err:
+        parse_grid({**RLBENCH, **data, **change})
+    for word in words:
+        assert word in str(err.value)
+    with pytest.raises(GridError, match="only apply to RLBench tasks"):
+        parse_grid({**BASE, "rlbench_data": "data/rlbench"})
+
+
+def test_rlbench_presets_are_the_papers_nine_tasks_and_plan_without_the_simulator(tmp_path, capsys):
+    from lerobot_obsbench.rlbench.paper_tasks import PAPER_TASKS
+
+    table2 = load_grid("paper-rlbench")
+    assert [t.removeprefix("rlbench/") for t in table2.tasks] == list(PAPER_TASKS)
+    runs = table2.expand()
+    assert len(runs) == 9 * 7 * 2 * 3 * 2  # Table 2's (space, encoder) pairs x policies x lrs x seeds
+    assert {s.episodes for r in runs for s in table2.evaluations(r)} == {25}
+    efficiency = load_grid("paper-sample-efficiency-rlbench")
+    assert {r.demos for r in efficiency.expand()} == {10, 25, 100}
+    code = main(["run", "paper-rlbench", "--out", str(tmp_path / "out"), "--dry-run", "--rlbench-data", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert code == 0 and "756 runs" in out and "rlbench/open_drawer" in out
+    # what is missing here is said before the plan, not refused: a plan needs no simulator
+    assert out.startswith("note: this machine cannot run paper-rlbench as it is: rlbench_data lacks 27 task folder")
+    assert "COPPELIASIM_ROOT" in out and not (tmp_path / "out").exists()
+    code = main(["run", "paper-rlbench", "--out", str(tmp_path / "out"), "--rlbench-data", str(tmp_path)])
+    assert code == 2 and "rlbench_data lacks 27 task folder" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()  # refused before anything was written
+
+
+def test_an_rlbench_grid_asking_for_more_episodes_than_the_data_holds_stops_before_anything_runs(
+    tmp_path, capsys, synthetic_module
+):
+    from tests.support import rlbench_fixtures
+
+    for split in ("train", "test"):
+        rlbench_fixtures.write_task(tmp_path / "data" / split / "open_drawer", synthetic_module, "variations", 2, 2)
+    (tmp_path / "g.yaml").write_text(
+        "tasks: [rlbench/open_drawer]\nobs_spaces: [rgb]\nsteps: 5\npreset: tiny\ndemos: [5]\neval_episodes: 3\n"
+        f"rlbench_data: {tmp_path / 'data'}\n"
+    )
+    assert main(["run", str(tmp_path / "g.yaml"), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "test/open_drawer holds 2 episodes; the grid's eval_episodes needs 3" in err
+    assert "train/open_drawer holds 2 episodes; the grid's demos needs 5" in err
+    assert "COPPELIASIM_ROOT" in err and not (tmp_path / "out").exists()
+
+
+def test_evaluations_run_in_lockstep_up_to_the_cores_a_unit_gets():
+    """The grid's eval_batch_size wins; else the device's measured default, on CPU no more envs than the cores the
+    local engine gives each unit (make main: two units on two cores, one env each)."""
+    from lerobot_obsbench.bench.runner import eval_batch_size
+    from lerobot_obsbench.envs.vector import DEFAULT_BATCH_SIZE
+
+    grid = parse_grid(BASE)
+    assert eval_batch_size(grid, "cpu") == DEFAULT_BATCH_SIZE["cpu"]
+    assert eval_batch_size(grid, "cpu", cores=1) == 1
+    assert eval_batch_size(grid, "cuda:0", cores=1) == DEFAULT_BATCH_SIZE["cuda"]
+    assert eval_batch_size(parse_grid({**BASE, "eval_batch_size": 4}), "cpu", cores=1) == 4
+    run = grid.expand()[0]
+    assert run.config() == parse_grid({**BASE, "eval_batch_size": 4}).expand()[0].config()  # not in the identity
+
+
+def test_the_evaluation_cost_model_is_the_benchmarks_measurement():
+    """The dry run's CPU evaluation rates and the CPU default batch size are what benchmarks/bench_eval.py
+    measured (benchmarks/results/eval_cpu.json): rerunning the benchmark with other numbers fails here until the
+    constants follow."""
+
+    from lerobot_obsbench.bench.cost import EVAL_RATE_IMAGE_SIZE, EVAL_STEPS_PER_SECOND
+    from lerobot_obsbench.envs.vector import DEFAULT_BATCH_SIZE
+
+    measured = json.loads((REPO_ROOT / "benchmarks/results/eval_cpu.json").read_text())
+    totals = {}
+    for rows in measured["with_policy"].values():
+        for row in rows:
+            steps, seconds = totals.get(row["batch_size"], (0, 0.0))
+            totals[row["batch_size"]] = (steps + row["env_steps"], seconds + row["seconds"])
+            assert row["same_results_as_first"]  # every batch size gave every seed the same outcome
+    assert measured["image_size"] == EVAL_RATE_IMAGE_SIZE
+    assert EVAL_STEPS_PER_SECOND["cpu"] == {n: round(steps / seconds, 1) for n, (steps, seconds) in totals.items()}
+    assert DEFAULT_BATCH_SIZE["cpu"] == min(totals, key=lambda n: totals[n][1])
+
+
+def test_the_gpu_cost_model_is_the_device_checks_measurement():
+    """The dry run's cuda rates and the cuda default batch size are what benchmarks/device_check.py measured on the
+    GPU machine (benchmarks/results/device_check_cuda*.json; SpUNet-34 from the earlier train-step run on the same
+    kind of card): a new device check with other numbers fails here until the constants follow."""
+    from statistics import mean
+
+    from lerobot_obsbench.bench.cost import EVAL_STEPS_PER_SECOND, TRAIN_SAMPLES_PER_SECOND
+    from lerobot_obsbench.envs.vector import DEFAULT_BATCH_SIZE
+
+    results = REPO_ROOT / "benchmarks" / "results"
+    check, rerun = (json.loads((results / f"device_check_cuda{s}.json").read_text()) for s in ("", "_rerun"))
+    assert "H200" in check["stages"]["machine"]["nvidia_smi"] and rerun["device"] == "cuda"
+    evaluations = [rerun["stages"]["cpu_simulation"]["with_policy_one_env"], rerun["stages"]["success"]["physx_cpu"]]
+    assert EVAL_STEPS_PER_SECOND["cuda"] == {r["batch_size"]: r["env_steps_per_s"] for r in evaluations}
+    fastest = min(evaluations, key=lambda r: r["wall_s"] / r["episodes"])
+    assert DEFAULT_BATCH_SIZE["cuda"] == fastest["batch_size"]
+
+    train = check["stages"]["train_step"]
+    quick = {row["obs_space"]: row["samples_per_s"] for row in train["quick_grid"]}
+    measured = {"image": quick["rgb"], "point": quick["pointcloud"], "none": min(quick["none"], quick["state"])}
+    assert TRAIN_SAMPLES_PER_SECOND[("cuda", "cpu")] == {k: round(v, -1) for k, v in measured.items()}
+    assert TRAIN_SAMPLES_PER_SECOND[("cuda", "tiny")] == TRAIN_SAMPLES_PER_SECOND[("cuda", "cpu")]  # a bound
+    act = [row for row in train["rows"] if row["policy"] == "obs_act" and "@" not in row["encoder"]]
+    images = [row["steps_per_s"] * row["batch"] for row in act if row["obs_space"] != "pointcloud"]
+    earlier = json.loads((results / "train_step_cuda_paper.json").read_text())["rows"]
+    points = [row["steps_per_s"] * row["batch"] for row in act if row["encoder"] == "pointnet"]
+    points += [
+        r["steps_per_s"] * r["batch"] for r in earlier if r["policy"] == "obs_act" and r["encoder"] == "spunet34"
+    ]
+    assert len(images) == 6 and len(points) == 2
+    paper = TRAIN_SAMPLES_PER_SECOND[("cuda", "paper")]
+    assert (paper["image"], paper["point"]) == (round(mean(images), -1), round(mean(points), -1))
+    assert paper["none"] == paper["image"]  # not measured: the image rate bounds the blind policy's time
+
+
+def _hours(pattern: str, text: str) -> float:
+    """The hours a dry run's cost line gives: `pattern` with `HOURS` where the number stands."""
+    return float(re.search(re.escape(pattern).replace("HOURS", r"([0-9.]+)"), text).group(1))
+
+
+def test_cpu_suite_schedules_every_task_with_both_controls_and_fits_three_hours(capsys):
+    grid = load_grid("cpu-suite")
+    runs = grid.expand()
+    tasks = ["PushCubeWide-v1", "PickCube-v1", "StackCube-v1", "PegInsertionSide-v1"]
+    assert grid.tasks == tasks
+    assert {(r.task, r.obs_space) for r in runs} == {
+        (t, s) for t in tasks for s in ("none", "state", "rgb", "pointcloud")
+    }
+    assert all(
+        sorted(r.seed for r in runs if (r.task, r.obs_space) == (t, s)) == [1000, 1001, 1002]
+        for t in tasks
+        for s in ("none", "state", "rgb", "pointcloud")
+    )
+    for run in runs:  # each task's own crop box reaches its point-cloud runs
+        workspace = dict(run.policy_overrides).get("workspace")
+        expected = list(task_spec(run.task).workspace) if run.obs_space == "pointcloud" else None
+        assert workspace == expected, (run.task, run.obs_space)
+    # PushCubeWide-v1 is the quick grid's setting, run for run: a copy of its outputs is reused
+    pushes = {r.run_id for r in runs if r.task == "PushCubeWide-v1"}
+    assert pushes == {r.run_id for r in load_grid("quick").expand()}
+    assert main(["run", "cpu-suite", "--dry-run", "--out", "/nonexistent/out", "--workers", "2"]) == 0
+    text = capsys.readouterr().out
+    assert "48 runs, 0 already trained, 48 to train; 0 of 96 test evaluations done" in text
+    assert "demonstrations to record: 840 episodes of PushCubeWide-v1 (210), PickCube-v1 (210)" in text
+    assert _hours("with 2 local workers: ~HOURS h of wall time", text) <= 3.0
+
+
+def test_gpu_day_fits_one_gpu_day_with_the_papers_encoders(capsys):
+    runs = load_grid("gpu-day").expand()
+    assert {r.preset for r in runs} == {"paper"}
+    assert {(r.obs_space, r.encoder) for r in runs} == {
+        ("none", "blind"),
+        ("state", "oracle"),
+        ("rgb", "resnet50"),
+        ("rgbd", "resnet50"),
+        ("pointcloud", "pointnet"),
+    }
+    assert {r.task for r in runs} == set(load_grid("cpu-suite").tasks)
+    assert main(["run", "gpu-day", "--dry-run", "--out", "/nonexistent/out", "--device", "cuda"]) == 0
+    text = capsys.readouterr().out
+    assert 0 < _hours("HOURS h on one H200 GPU", text) <= 24.0
+
+
+def test_dry_run_prices_only_the_demonstrations_still_to_record(tmp_path, capsys):
+    grid = tmp_path / "g.yaml"
+    grid.write_text("tasks: [PushCube-v1, PickCube-v1]\nobs_spaces: [none]\nsteps: 5\npreset: tiny\ndemos: 2000\n")
+    assert main(["run", str(grid), "--out", str(tmp_path), "--dry-run"]) == 0
+    first = capsys.readouterr().out
+    assert "demonstrations to record: 4000 episodes of PushCube-v1 (2000), PickCube-v1 (2000)" in first
+    run = next(r for r in load_grid(grid).expand() if r.task == "PushCube-v1")
+    recorded = demo_dir(tmp_path, run, 2000) / "meta"
+    recorded.mkdir(parents=True)
+    (recorded / "info.json").write_text("{}")
+    assert main(["run", str(grid), "--out", str(tmp_path), "--dry-run"]) == 0
+    second = capsys.readouterr().out
+    assert "demonstrations to record: 2000 episodes of PickCube-v1 (2000)" in second
+    assert _hours("HOURS h on a 2-core CPU", second) < _hours("HOURS h on a 2-core CPU", first)

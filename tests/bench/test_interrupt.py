@@ -1,0 +1,62 @@
+"""Ctrl-C in the long commands: one line saying what was kept and how to go on, exit code 130, no traceback,
+nothing half-written; the same command then finishes the work, with the result an uninterrupted run gives."""
+
+from __future__ import annotations
+
+import json
+import signal
+import time
+from pathlib import Path
+
+import pytest
+
+from lerobot_obsbench.bench.results import by_kind
+from tests.bench.test_bench_run import comparable, finish, obsbench, one_run_grid, quiet, wait_for
+
+pytestmark = pytest.mark.slow
+
+
+def interrupt(proc, settle: float = 2.0) -> str:
+    """SIGINT to the command alone (what Ctrl-C sends it), then its output."""
+    time.sleep(settle)
+    proc.send_signal(signal.SIGINT)
+    log, _ = proc.communicate(timeout=120)
+    return log
+
+
+def test_ctrl_c_during_a_grid_keeps_its_results_and_the_same_command_finishes_it(tmp_path):
+    grid = one_run_grid(tmp_path / "one.yaml", ("steps: 3", "steps: 200"))
+    plain, out = tmp_path / "plain", tmp_path / "out"
+    finish("run", str(grid), "--out", str(plain), "--threads", "1")
+    proc = obsbench("run", str(grid), "--out", str(out), "--threads", "1", start_new_session=True)
+    wait_for(lambda: any(out.glob("runs/*/train.log")), proc)  # demos recorded, training under way
+    log = interrupt(proc)
+    assert proc.returncode == 130, log
+    assert "Traceback" not in log
+    # the last line: no warning from multiprocessing's resource tracker about the killed workers after it
+    assert log.rstrip().splitlines()[-1].startswith("obsbench run: interrupted; every finished unit is kept")
+    assert by_kind(quiet(out / "results.jsonl"), "train") == []  # stopped mid-training: nothing half-recorded
+    log = finish("run", str(grid), "--out", str(out), "--threads", "1")
+    assert "1 runs, 0 already trained, 1 to train" in log
+    assert comparable(quiet(out / "results.jsonl")) == comparable(quiet(plain / "results.jsonl"))
+
+
+def test_ctrl_c_during_demos_keeps_the_recorded_episodes(tmp_path):
+    args = ["demos", "--task", "PushCube-v1", "--episodes", "3", "--image-size", "32"]
+    plain, out = tmp_path / "plain", tmp_path / "out"
+    finish(*args, "--out", str(plain))
+    proc = obsbench(*args, "--out", str(out), start_new_session=True)
+    wait_for(lambda: any((out / ".episodes").glob("seed_*.npz")), proc)
+    log = interrupt(proc, settle=0.0)
+    assert proc.returncode == 130, log
+    assert "Traceback" not in log
+    assert log.rstrip().splitlines()[-1].startswith("obsbench demos: interrupted; the recorded episodes are kept")
+    assert not (out / "obsbench_demos.json").exists()
+    kept = sorted(p.name for p in (out / ".episodes").glob("seed_*.npz"))
+    assert kept and not list((out / ".episodes").glob("*.tmp"))  # the episode in flight is never left half-written
+    finish(*args, "--out", str(out))
+    assert json.loads((out / "obsbench_demos.json").read_text()) == json.loads(
+        (plain / "obsbench_demos.json").read_text()
+    )
+    frames = [json.loads(Path(d, "meta", "info.json").read_text())["total_frames"] for d in (out, plain)]
+    assert frames[0] == frames[1]

@@ -1,0 +1,1 @@
+"""Tests of lerobot_obsbench.datasets: validation and viewing of recordings."""

@@ -1,1 +1,0 @@
-"""Stand-in PyRep (tests/fake_rlbench/README.md)."""

@@ -1,1 +1,0 @@
-"""Stand-in RLBench (tests/fake_rlbench/README.md)."""

@@ -1,0 +1,1 @@
+"""Stand-in PyRep (tests/support/fake_rlbench/README.md)."""

@@ -1,0 +1,1 @@
+"""Stand-in RLBench (tests/support/fake_rlbench/README.md)."""
