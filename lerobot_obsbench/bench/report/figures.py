@@ -1,11 +1,13 @@
-"""The report's figures as PNG bytes: one matplotlib set-up (`pyplot`, `figure_png`), the bar and curve charts,
-and one builder per figure, each taking the ReportData and returning {file name: (caption, PNG)}, empty when it
-has nothing to draw."""
+"""The report's figures as PNG bytes: one matplotlib set-up (`pyplot`, `figure_png`), the bar and curve charts, rliable's
+interval and improvement charts, and one builder per figure, each taking the ReportData and returning {file name:
+(caption, PNG)}, empty when it has nothing to draw."""
 
 from __future__ import annotations
 
 import io
 import math
+
+import numpy
 
 from lerobot_obsbench.bench import aggregates
 from lerobot_obsbench.bench.report.data import ReportData
@@ -87,6 +89,54 @@ def curve_chart(
     return figure_png(fig)
 
 
+def _bounds(estimate: tuple[float, float | None, float | None]) -> tuple[float, float]:
+    """(low, high), the point itself where there is no interval (one seed)."""
+    point, low, high = estimate
+    return (point, point) if low is None else (low, high)
+
+
+def interval_chart(estimates: dict[str, dict]):
+    """rliable's interval plot of Mean S.R. and IQM per method (one-seed methods: the point only), as a
+    matplotlib figure."""
+    pyplot()  # rliable draws with pyplot: on the Agg backend
+    from rliable import plot_utils
+
+    labels = sorted(estimates)
+    points = {m: numpy.array([estimates[m]["mean_sr"][0], estimates[m]["iqm"][0]]) for m in labels}
+    intervals = {m: numpy.array([_bounds(estimates[m]["mean_sr"]), _bounds(estimates[m]["iqm"])]).T for m in labels}
+    fig, _ = plot_utils.plot_interval_estimates(
+        points,
+        intervals,
+        metric_names=list(aggregates.AGGREGATE_NAMES),
+        algorithms=labels,
+        xlabel="success rate (95% CI over training seeds)",
+        xlabel_y_coordinate=-0.35,
+        subfigure_width=4.0,
+    )
+    return fig
+
+
+def improvement_chart(estimates: dict[tuple[str, str], tuple[float, float, float]]):
+    """rliable's probability-of-improvement plot, one bar per (method, reference) pair, as a matplotlib figure."""
+    plt = pyplot()
+    from rliable import plot_utils
+
+    separator = "\t"  # split back into the two labels by rliable; labels never hold a tab
+    points = {f"{x}{separator}{y}": e[0] for (x, y), e in estimates.items()}
+    intervals = {f"{x}{separator}{y}": numpy.array(e[1:]) for (x, y), e in estimates.items()}
+    fig, ax = plt.subplots(figsize=(4.5, 0.5 + 0.45 * len(points)))
+    plot_utils.plot_probability_of_improvement(
+        points,
+        intervals,
+        pair_separator=separator,
+        ax=ax,
+        xticks=[0.0, 0.25, 0.5, 0.75, 1.0],
+        ticklabelsize="small",
+        labelsize="small",
+    )
+    return fig
+
+
 def aggregate_figures(data: ReportData) -> dict[str, Figure]:
     """rliable's interval plot of Mean S.R. and IQM, and its probability-of-improvement plot."""
     found = data.aggregates
@@ -94,12 +144,12 @@ def aggregate_figures(data: ReportData) -> dict[str, Figure]:
     if found.estimates:
         figures["aggregates.png"] = (
             "Mean S.R. and IQM over training seeds and tasks",
-            figure_png(aggregates.interval_chart(found.estimates)),
+            figure_png(interval_chart(found.estimates)),
         )
     if found.pairs:
         figures["probability_of_improvement.png"] = (
             "Probability of improvement (training seeds)",
-            figure_png(aggregates.improvement_chart(found.pairs)),
+            figure_png(improvement_chart(found.pairs)),
         )
     return figures
 
