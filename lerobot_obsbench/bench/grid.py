@@ -509,32 +509,18 @@ def _check_values(values: dict, name: str) -> None:
     _check_spaces_listed(per_space, values.get("obs_spaces", []), "space_overrides", name)
 
 
+# the fields parse_grid turns into their values itself; every other grid field passes to Grid as written
+PARSED_FIELDS = frozenset(
+    "name tasks obs_spaces policies seeds learning_rates demos preset encoders augmentations".split()
+)
+
+
 def parse_grid(data: dict, name: str = "grid") -> Grid:
-    if not isinstance(data, dict):
-        raise GridError(f"{name}: a grid file is a YAML mapping of fields; got {type(data).__name__}")
-    if "epochs" in data:
-        raise GridError(
-            f"{name}: `epochs` is ambiguous; write `demo_epochs` (the paper's: one sampled frame per demonstration "
-            "per epoch) or `frame_epochs` (every frame of every demonstration), or `steps` / `samples`"
-        )
-    unknown = sorted(set(data) - GRID_FIELDS)
-    if unknown:
-        raise GridError(f"{name}: unknown grid fields {unknown}; valid fields: {', '.join(sorted(GRID_FIELDS))}")
+    _check_field_names(data, name)
     values = dict(data)
     values.setdefault("name", name)
     tasks = _as_list(values.get("tasks"), "tasks")
-    rlbench = [t for t in tasks if isinstance(t, str) and grid_task_name(t) is not None]
-    if rlbench:
-        _check_rlbench(values, tasks, rlbench, name)
-    else:
-        _choose(tasks, list(TASKS), "tasks")
-        for task in tasks:
-            task_spec(task)
-        given = [k for k in ("rlbench_data", "clip_weights") if values.get(k) is not None]
-        if given:
-            raise GridError(
-                f"{name}: {', '.join(given)} only apply to RLBench tasks (rlbench/<task>); the grid has none"
-            )
+    rlbench = _check_tasks(values, tasks, name)
     spaces = _choose(_as_list(values.get("obs_spaces"), "obs_spaces"), list(OBS_SPACES), "obs_spaces")
     policies = _as_list(values.get("policies", ["obs_act"]), "policies")
     _named_policies_in_grid_terms(policies, name)
@@ -561,25 +547,45 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
         preset=preset,
         encoders=_resolve_encoders(values.get("encoders"), spaces, preset, name),
         augmentations=_resolve_augmentations(values.get("augmentations"), spaces, name),
-        **{
-            k: values[k]
-            for k in GRID_FIELDS
-            - {
-                "name",
-                "tasks",
-                "obs_spaces",
-                "policies",
-                "seeds",
-                "learning_rates",
-                "demos",
-                "preset",
-                "encoders",
-                "augmentations",
-            }
-            if k in values
-        },
+        **{k: values[k] for k in GRID_FIELDS - PARSED_FIELDS if k in values},
     )
-    for policy in policies:
+    _check_grid(grid, bool(rlbench), name)
+    return grid
+
+
+def _check_field_names(data, name: str) -> None:
+    """A grid file is a mapping of known fields, `epochs` refused as ambiguous."""
+    if not isinstance(data, dict):
+        raise GridError(f"{name}: a grid file is a YAML mapping of fields; got {type(data).__name__}")
+    if "epochs" in data:
+        raise GridError(
+            f"{name}: `epochs` is ambiguous; write `demo_epochs` (the paper's: one sampled frame per demonstration "
+            "per epoch) or `frame_epochs` (every frame of every demonstration), or `steps` / `samples`"
+        )
+    unknown = sorted(set(data) - GRID_FIELDS)
+    if unknown:
+        raise GridError(f"{name}: unknown grid fields {unknown}; valid fields: {', '.join(sorted(GRID_FIELDS))}")
+
+
+def _check_tasks(values: dict, tasks: list, name: str) -> list[str]:
+    """The grid's tasks: all RLBench tasks (returned) or all ManiSkill tasks (then no RLBench-only field)."""
+    rlbench = [t for t in tasks if isinstance(t, str) and grid_task_name(t) is not None]
+    if rlbench:
+        _check_rlbench(values, tasks, rlbench, name)
+        return rlbench
+    _choose(tasks, list(TASKS), "tasks")
+    for task in tasks:
+        task_spec(task)
+    given = [k for k in ("rlbench_data", "clip_weights") if values.get(k) is not None]
+    if given:
+        raise GridError(f"{name}: {', '.join(given)} only apply to RLBench tasks (rlbench/<task>); the grid has none")
+    return rlbench
+
+
+def _check_grid(grid: Grid, rlbench: bool, name: str) -> None:
+    """What only the whole grid can tell: one budget unit per policy, valid and distinct perturbations (RLBench's
+    among its camera views), the experts' control mode, variants as mappings, and no override of a grid axis."""
+    for policy in grid.policies:
         grid.budget(policy)  # exactly one unit per policy
     for text in grid.perturbations:
         try:
@@ -614,7 +620,6 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
                 f"list the value there instead (the run would train one thing while its results say another)"
             )
     check_policy_configs(grid, name)
-    return grid
 
 
 def _check_rlbench(values: dict, tasks: list, rlbench: list[str], name: str) -> None:
