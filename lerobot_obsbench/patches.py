@@ -14,8 +14,14 @@
    LeRobot's own image path (read and written through `datasets`), which keeps those columns' types. (Callers
    pass `concatenate_data=False`: appending to an existing data file still concatenates data frames, which
    pandas cannot do with those columns either.)
+3. The AV1 encoder's real-time priority. SVT-AV1 (LeRobot's default codec, `libsvtav1`, in PyAV's wheel) switches
+   the thread that opens an encoder to SCHED_FIFO priority 99 whenever the process may, that is as root. That
+   thread is usually the main one: it then preempts every normal process on the machine, and every process it
+   starts afterwards (a grid's lerobot-train and evaluation units, a test's subprocesses) inherits the policy.
+   `apply()` wraps LeRobot's `encode_video_frames` in `thread_scheduling_kept()`, which gives the calling thread
+   its policy back.
 
-Fix 1 replaces LeRobot methods for every process that imports the plugin (LeRobot's plugin discovery imports it
+Fixes 1 and 3 replace LeRobot functions for every process that imports the plugin (LeRobot's plugin discovery imports it
 into every `lerobot-*` command), so `apply()` patches only the LeRobot version it was written and tested for
 (`LEROBOT_VERSION`); on any other it warns and leaves LeRobot as it is.
 
@@ -25,7 +31,9 @@ into every `lerobot-*` command), so `apply()` patches only the LeRobot version i
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
+import os
 from importlib import metadata
 
 import datasets
@@ -34,6 +42,7 @@ import PIL.Image
 import torch
 from datasets.formatting import _register_formatter
 from datasets.formatting.torch_formatter import TorchFormatter
+from lerobot.datasets import dataset_tools, dataset_writer, video_utils
 from lerobot.datasets.dataset_reader import DatasetReader
 from lerobot.datasets.io_utils import pil_to_chw_tensor
 from lerobot.datasets.language import LANGUAGE_COLUMNS
@@ -109,6 +118,35 @@ def _set(query, load) -> None:
     DatasetReader._load_hf_dataset = load
 
 
+@contextlib.contextmanager
+def thread_scheduling_kept():
+    """Gives the calling thread back the scheduling policy and priority it had on entering (Linux only: elsewhere
+    there is neither the call nor the encoder's switch)."""
+    if not hasattr(os, "sched_getscheduler"):
+        yield
+        return
+    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+    try:
+        yield
+    finally:
+        if (os.sched_getscheduler(0), os.sched_getparam(0)) != (policy, param):
+            os.sched_setscheduler(0, policy, param)
+
+
+def keeping_scheduling(encode):
+    """`encode` (a video encoding function) that leaves the calling thread's scheduling as it found it."""
+    if getattr(encode, "keeps_scheduling", False):
+        return encode
+
+    @functools.wraps(encode)
+    def encode_keeping_scheduling(*args, **kwargs):
+        with thread_scheduling_kept():
+            return encode(*args, **kwargs)
+
+    encode_keeping_scheduling.keeps_scheduling = True
+    return encode_keeping_scheduling
+
+
 def apply(lerobot_version: str | None = None) -> bool:
     """Patch LeRobot if it is the version the patches were written for; returns whether it patched."""
     version = lerobot_version or metadata.version("lerobot")
@@ -121,6 +159,8 @@ def apply(lerobot_version: str | None = None) -> bool:
         )
         return False
     _set(query_hf_dataset_by_column, load_hf_dataset_fast)
+    for module in (video_utils, dataset_writer, dataset_tools):  # each holds its own name for the function
+        module.encode_video_frames = keeping_scheduling(module.encode_video_frames)
     return True
 
 
