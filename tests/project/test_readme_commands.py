@@ -1,9 +1,9 @@
-"""Every `obsbench` and `lerobot-*` command line in the shell code blocks of README.md and of every docs/*.md page
-parses as written: the plugin's own commands through `obsbench`'s argparse parser (a device command's
-`--robot.*` / `--teleop.*` options through LeRobot's draccus configs), LeRobot's through the config classes its
-scripts parse (with the plugin's types registered). Nothing runs; a renamed flag, a removed choice or a type the
-plugin no longer registers fails here, naming the page, not in a reader's terminal. Also: README links every
-docs/ page, and every relative link in these pages points at a file that exists.
+"""Every `obsbench` and `lerobot-*` command line in the shell code blocks of README.md, of every docs/*.md page and of
+every published run's docs/results/*/README.md parses as written: the plugin's own commands through `obsbench`'s
+argparse parser (a device command's `--robot.*` / `--teleop.*` options through LeRobot's draccus configs), LeRobot's
+through the config classes its scripts parse (with the plugin's types registered). Nothing runs; a renamed flag, a
+removed choice or a type the plugin no longer registers fails here, naming the page, not in a reader's terminal.
+Also: README links every docs/ page, and every relative link in these pages points at a file that exists.
 
 The pages' notation: `[--flag value]` is an optional part (checked too, its first `a|b` alternative), `...`
 stands for elided arguments (such a line is checked up to it), `NAME="..."` defines a shell variable used below."""
@@ -18,7 +18,12 @@ import pytest
 
 from tests.support.paths import REPO_ROOT as ROOT
 
-PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+# the front door, the reference pages, and the pages that present a published run
+PAGES = [
+    ROOT / "README.md",
+    *sorted((ROOT / "docs").glob("*.md")),
+    *sorted((ROOT / "docs").glob("results/*/README.md")),
+]
 COMMAND = re.compile(r"^(?:[A-Z_]+=\S+\s+)*(?:\.venv/bin/)?(obsbench|lerobot-[a-z-]+)\b(.*)$")
 # LeRobot scripts whose configuration the pages' lines are parsed into: (module, config class)
 LEROBOT_CONFIGS = {
