@@ -1,6 +1,6 @@
-"""The report's figures as PNG bytes: one matplotlib set-up (`pyplot`, `figure_png`), the bar and curve charts, rliable's
-interval and improvement charts, and one builder per figure, each taking the ReportData and returning {file name:
-(caption, PNG)}, empty when it has nothing to draw."""
+"""The report's figures as PNG bytes: one matplotlib set-up (`pyplot`, `figure_png`), the bar and curve charts,
+rliable's interval and improvement charts, and one builder per figure, each taking the ReportData and returning
+{file name: (caption, PNG)}, empty when it has nothing to draw."""
 
 from __future__ import annotations
 
