@@ -52,6 +52,8 @@ logger = logging.getLogger(__name__)
 FORMAT_TYPE = "lerobot_obsbench_torch"
 LEROBOT_VERSION = "0.6.1"  # the version these patches replace methods of
 _STOCK = {"query": DatasetReader._query_hf_dataset, "load": DatasetReader._load_hf_dataset}
+# LeRobot's video encoder under each name it is called by (each module holds its own)
+_STOCK_ENCODERS = {module: module.encode_video_frames for module in (video_utils, dataset_writer, dataset_tools)}
 
 
 class LeRobotTorchFormatter(TorchFormatter):
@@ -135,15 +137,12 @@ def thread_scheduling_kept():
 
 def keeping_scheduling(encode):
     """`encode` (a video encoding function) that leaves the calling thread's scheduling as it found it."""
-    if getattr(encode, "keeps_scheduling", False):
-        return encode
 
     @functools.wraps(encode)
     def encode_keeping_scheduling(*args, **kwargs):
         with thread_scheduling_kept():
             return encode(*args, **kwargs)
 
-    encode_keeping_scheduling.keeps_scheduling = True
     return encode_keeping_scheduling
 
 
@@ -159,8 +158,8 @@ def apply(lerobot_version: str | None = None) -> bool:
         )
         return False
     _set(query_hf_dataset_by_column, load_hf_dataset_fast)
-    for module in (video_utils, dataset_writer, dataset_tools):  # each holds its own name for the function
-        module.encode_video_frames = keeping_scheduling(module.encode_video_frames)
+    for module, encode in _STOCK_ENCODERS.items():  # wrapped from the stock one, so applying again wraps once
+        module.encode_video_frames = keeping_scheduling(encode)
     return True
 
 

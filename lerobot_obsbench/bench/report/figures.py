@@ -7,7 +7,7 @@ from __future__ import annotations
 import io
 import math
 
-import numpy
+import numpy as np
 
 from lerobot_obsbench.bench import aggregates
 from lerobot_obsbench.bench.report.data import ReportData
@@ -102,8 +102,8 @@ def interval_chart(estimates: dict[str, dict]):
     from rliable import plot_utils
 
     labels = sorted(estimates)
-    points = {m: numpy.array([estimates[m]["mean_sr"][0], estimates[m]["iqm"][0]]) for m in labels}
-    intervals = {m: numpy.array([_bounds(estimates[m]["mean_sr"]), _bounds(estimates[m]["iqm"])]).T for m in labels}
+    points = {m: np.array([estimates[m]["mean_sr"][0], estimates[m]["iqm"][0]]) for m in labels}
+    intervals = {m: np.array([_bounds(estimates[m]["mean_sr"]), _bounds(estimates[m]["iqm"])]).T for m in labels}
     fig, _ = plot_utils.plot_interval_estimates(
         points,
         intervals,
@@ -123,7 +123,7 @@ def improvement_chart(estimates: dict[tuple[str, str], tuple[float, float, float
 
     separator = "\t"  # split back into the two labels by rliable; labels never hold a tab
     points = {f"{x}{separator}{y}": e[0] for (x, y), e in estimates.items()}
-    intervals = {f"{x}{separator}{y}": numpy.array(e[1:]) for (x, y), e in estimates.items()}
+    intervals = {f"{x}{separator}{y}": np.array(e[1:]) for (x, y), e in estimates.items()}
     fig, ax = plt.subplots(figsize=(4.5, 0.5 + 0.45 * len(points)))
     plot_utils.plot_probability_of_improvement(
         points,
