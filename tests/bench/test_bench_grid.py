@@ -520,7 +520,7 @@ def test_cpu_suite_schedules_every_task_with_both_controls_and_fits_three_hours(
     assert pushes == {r.run_id for r in load_grid("quick").expand()}
     assert main(["run", "cpu-suite", "--dry-run", "--out", "/nonexistent/out", "--workers", "2"]) == 0
     text = capsys.readouterr().out
-    assert "48 runs, 0 already trained, 48 to train; 0 of 96 test evaluations done" in text
+    assert "48 runs, 0 already trained, 48 to train; 0 of 72 test evaluations done" in text
     assert "demonstrations to record: 840 episodes of PushCubeWide-v1 (210), PickCube-v1 (210)" in text
     assert _hours("with 2 local workers: ~HOURS h of wall time", text) <= 3.0
 
