@@ -4,6 +4,7 @@ input its unit needs. Jobs are picklable, so the local pool and Ray take the sam
 
 from __future__ import annotations
 
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -34,7 +35,9 @@ class DemoJob:
     gpus = 0
 
     def execute(self) -> dict:
-        return demos_unit(
+        """The recording's sidecar, with the unit's `wall_s`."""
+        start = time.monotonic()
+        info = demos_unit(
             task=self.task,
             episodes=self.episodes,
             path=self.path,
@@ -42,6 +45,7 @@ class DemoJob:
             cameras=list(self.cameras),
             rlbench=self.rlbench,
         )
+        return {**info, "wall_s": round(time.monotonic() - start, 1)}
 
     def describe(self) -> str:
         return f"demonstrations {self.key}"

@@ -302,6 +302,7 @@ class Driver:
     def finished(self, job: Job, outcome) -> None:
         match job:
             case DemoJob():
+                self.echo(f"{job.describe()}: {job.episodes} episodes of {job.task} in {outcome['wall_s']:.0f} s")
                 for run in self.work.to_train:
                     if run.demo_key == job.key:
                         self.train(run, job.path)

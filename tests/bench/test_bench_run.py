@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -280,7 +281,9 @@ def test_a_grid_run_records_its_diagnostics_on_held_out_demos_and_the_report_sho
         ("obs_spaces: [rgb]", "obs_spaces: [pointcloud]"),
     )
     out = tmp_path / "out"
-    finish("run", str(grid), "--out", str(out))
+    log = finish("run", str(grid), "--out", str(out))
+    # the recording reports itself when done, as training and evaluation do
+    assert re.search(r"demonstrations \S+: 3 episodes of PushCube-v1 in \d+ s", log), log
     (train,) = by_kind(quiet(out / "results.jsonl"), "train")
     found = train["diagnostics"]
     assert "error" not in found, found
