@@ -28,10 +28,18 @@ TRAIN_SAMPLES_PER_SECOND = {
 # Evaluation env steps per second with the policy at 64², by lockstep batch size, env start-up included (an
 # unmeasured batch size counts as the largest measured one below it); the same page says where each was measured.
 EVAL_STEPS_PER_SECOND = {"cpu": {1: 23.6, 2: 24.7, 3: 26.1, 4: 24.1}, "cuda": {1: 43.3, 16: 32.6}}
+# A task's evaluation seconds over what the rates above price (they were measured on PushCubeWide-v1), summed over
+# the evaluations of a real grid on this machine (benchmarks/bench_grid_cost.py; tests/bench/test_bench_grid.py
+# holds them to its JSON): a task's physics (a peg pushed into a hole) and policies that fail, running out each
+# episode's budget, make it larger. A task not listed, and every task on cuda, counts as 1.
+EVAL_TASK_FACTOR = {
+    "cpu": {"PushCubeWide-v1": 0.56, "PickCube-v1": 0.96, "StackCube-v1": 1.24, "PegInsertionSide-v1": 1.79},
+}
 # One line of the dry run: the machines behind the rates.
 RATES_MEASURED_ON = (
     "rates: cpu measured on a 2-core CPU machine; cuda on one H200 with a 16-core host (model steps; evaluation on "
-    "ManiSkill's CPU simulation rendering on the GPU: its GPU simulation is not measured); docs/performance.md"
+    "ManiSkill's CPU simulation rendering on the GPU: its GPU simulation is not measured); per-task evaluation "
+    "factors on cpu only; docs/performance.md"
 )
 EVAL_RATE_IMAGE_SIZE = 64
 # The cores of the machine the cpu rates were measured on: more local workers than this share no more of its time.
@@ -64,9 +72,11 @@ def episode_seconds(
     batch_size: int = 1,
     image_size: int = 128,
     used: float = 0.6,
+    task: str | None = None,
 ) -> float:
     """Running `episodes` simulated episodes of up to `max_steps` steps, `batch_size` in lockstep, each using
-    `used` of its budget (a successful episode ends early; a failed one runs it out)."""
+    `used` of its budget (a successful episode ends early; a failed one runs it out); `task`: evaluations of that
+    task, priced with its measured factor (None: the rates alone)."""
     if rlbench:
         rate = RLBENCH_STEPS_PER_SECOND[device_kind(device)]
     else:
@@ -74,11 +84,16 @@ def episode_seconds(
         rate = measured[max(n for n in measured if n <= batch_size)]
         if device_kind(device) == "cpu":  # the CPU renderer slows with the frame; the GPU's did not from 64² to 128²
             rate *= min(1.0, EVAL_RATE_IMAGE_SIZE / image_size)
-    return episodes * max_steps * used / rate + 10
+    factor = EVAL_TASK_FACTOR.get(device_kind(device), {}).get(task, 1.0)
+    return episodes * max_steps * used / rate * factor + 10
 
 
-def eval_seconds(spec: EvalSpec, device: str, rlbench: bool = False, batch_size: int = 1, image_size: int = 128):
-    return episode_seconds(spec.episodes, spec.max_steps, device, rlbench, batch_size, image_size)
+def eval_seconds(spec: EvalSpec, run: RunSpec, device: str, batch_size: int = 1) -> float:
+    """`spec`, an evaluation of `run`, with `batch_size` episodes in lockstep."""
+    rlbench = run.rlbench_task is not None
+    return episode_seconds(
+        spec.episodes, spec.max_steps, device, rlbench, batch_size, run.image_size, task=None if rlbench else run.task
+    )
 
 
 def demo_seconds(grid: Grid, run: RunSpec, episodes: int, device: str) -> float:
@@ -126,10 +141,9 @@ class PlanCost:
             self.steps += steps
             self.samples += steps * run.batch_size
         self.episodes += sum(s.episodes for s in evals)
-        rlbench = run.rlbench_task is not None
         for kind in DEVICE_KINDS:
             self.seconds[kind] += (train_seconds(run, steps, kind) if train else 0) + sum(
-                eval_seconds(s, kind, rlbench, batch_sizes[kind], run.image_size) for s in evals
+                eval_seconds(s, run, kind, batch_sizes[kind]) for s in evals
             )
 
     def lines(self, device: str, workers: int = 1) -> list[str]:

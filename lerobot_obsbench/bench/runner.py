@@ -392,8 +392,7 @@ class Driver:
         """(seconds left, progress line or None before it starts) of a queued or running evaluation."""
         run, spec = job.run, job.spec
         state = evaluation_progress(self.out, run.run_id, spec.eval_id)
-        rlbench = run.rlbench_task is not None
-        left = eval_seconds(spec, self.device, rlbench, self.eval_batch_size, run.image_size) * (
+        left = eval_seconds(spec, run, self.device, self.eval_batch_size) * (
             1 - (state or {"done": 0})["done"] / spec.episodes
         )
         if not state:

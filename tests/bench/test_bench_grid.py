@@ -458,6 +458,22 @@ def test_the_evaluation_cost_model_is_the_benchmarks_measurement():
     assert DEFAULT_BATCH_SIZE["cpu"] == min(totals, key=lambda n: totals[n][1])
 
 
+def test_the_per_task_evaluation_factors_are_the_cpu_suites_measurement():
+    """The dry run's per-task evaluation factors are what benchmarks/bench_grid_cost.py measured on a clean run of
+    the cpu-suite grid (benchmarks/results/grid_cost_cpu-suite.json), and price a task's evaluations on the CPU
+    only: the cuda rates have no per-task measurement."""
+    from lerobot_obsbench.bench.cost import EVAL_TASK_FACTOR, episode_seconds
+
+    measured = json.loads((REPO_ROOT / "benchmarks/results/grid_cost_cpu-suite.json").read_text())
+    assert EVAL_TASK_FACTOR == {"cpu": {task: row["factor"] for task, row in measured["evaluation"].items()}}
+    assert set(EVAL_TASK_FACTOR["cpu"]) == set(load_grid("cpu-suite").tasks)
+    for task, factor in EVAL_TASK_FACTOR["cpu"].items():
+        plain = episode_seconds(25, 100, "cpu", image_size=64) - 10  # the fixed start-up is not scaled
+        assert episode_seconds(25, 100, "cpu", image_size=64, task=task) - 10 == pytest.approx(factor * plain)
+        assert episode_seconds(25, 100, "cuda", task=task) == episode_seconds(25, 100, "cuda")
+    assert episode_seconds(25, 100, "cpu", task="PushCube-v1") == episode_seconds(25, 100, "cpu")  # not measured
+
+
 def test_the_gpu_cost_model_is_the_device_checks_measurement():
     """The dry run's cuda rates and the cuda default batch size are what benchmarks/device_check.py measured on the
     GPU machine (benchmarks/results/device_check_cuda*.json; SpUNet-34 from the earlier train-step run on the same

@@ -1,0 +1,106 @@
+"""A finished grid's measured unit times against the cost model's prices for the same units (`bench/cost.py`).
+
+Reads the grid's results file: each evaluation record's `wall_s` and each training record's `train_s`, both taken
+while the grid ran (with its workers sharing the machine), against what the model prices the same unit at with
+one worker per core (`episode_seconds` without a task factor, `train_seconds`). Per task, the evaluations' measured
+over priced seconds is the factor `bench/cost.EVAL_TASK_FACTOR` holds (tests/bench/test_bench_grid.py checks it);
+training is reported per task and space. `--wall-s` records the whole run's wall time (as `time` measured it) next
+to the dry run's estimate for the grid from nothing, before and after the factors.
+
+    .venv/bin/python -m benchmarks.bench_grid_cost --grid cpu-suite --results outputs/bench/cpu-suite/results.jsonl
+        [--wall-s 7200] [--workers 2] [--out FILE]
+
+Writes benchmarks/results/grid_cost_<grid>.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+from collections import defaultdict
+from pathlib import Path
+from unittest import mock
+
+from benchmarks.common import write
+from lerobot_obsbench.bench import cost
+from lerobot_obsbench.bench.grid import load_grid
+from lerobot_obsbench.bench.results import by_kind, read_results
+from lerobot_obsbench.bench.runner import load_work, print_plan
+
+
+def evaluation_rows(records: list[dict], image_sizes: dict[str, int]) -> dict[str, dict]:
+    """Per task: evaluations, episodes, env steps simulated, measured and priced seconds, and their ratio."""
+    rows = defaultdict(lambda: {"evaluations": 0, "episodes": 0, "env_steps": 0, "measured_s": 0.0, "priced_s": 0.0})
+    for record in by_kind(records, "eval"):
+        if "copied_from" in record:  # the same episodes as another record, not run again
+            continue
+        row = rows[record["task"]]
+        row["evaluations"] += 1
+        row["episodes"] += record["episodes"]
+        row["env_steps"] += sum(record["per_seed"]["length"])
+        row["measured_s"] += record["wall_s"]
+        row["priced_s"] += cost.episode_seconds(
+            record["episodes"],
+            record["max_steps"],
+            record["device"],
+            batch_size=record["batch_size"],
+            image_size=image_sizes[record["run_id"]],
+        )
+    return {task: finished(row, measured="measured_s", priced="priced_s") for task, row in rows.items()}
+
+
+def training_rows(records: list[dict], grid) -> dict[str, dict]:
+    """Per task and observation space: runs, measured and priced training seconds, and their ratio."""
+    runs = {run.run_id: run for run in grid.expand()}
+    rows = defaultdict(lambda: {"runs": 0, "measured_s": 0.0, "priced_s": 0.0})
+    for record in by_kind(records, "train"):
+        run = runs[record["run_id"]]
+        row = rows[f"{run.task} {run.obs_space}"]
+        row["runs"] += 1
+        row["measured_s"] += record["timings"]["train_s"]
+        row["priced_s"] += cost.train_seconds(run, record["train_steps"], record["device"])
+    return {key: finished(row, measured="measured_s", priced="priced_s") for key, row in sorted(rows.items())}
+
+
+def finished(row: dict, measured: str, priced: str) -> dict:
+    row = {k: round(v, 1) if isinstance(v, float) else v for k, v in row.items()}
+    return {**row, "factor": round(row[measured] / row[priced], 2)}
+
+
+def dry_run_hours(grid, workers: int) -> float:
+    """The dry run's wall-time estimate with `workers` local workers for `grid` from nothing."""
+    lines = []
+    print_plan(grid, load_work(grid, Path("/nonexistent")), Path("/nonexistent"), "cpu", lines.append, workers)
+    found = [re.search(r"~([0-9.]+) h of wall time", line) for line in lines]
+    return float(next(m for m in found if m).group(1))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--grid", required=True, help="the grid's name or YAML file")
+    parser.add_argument("--results", type=Path, required=True, help="its results.jsonl")
+    parser.add_argument("--wall-s", type=float, help="the run's wall time from nothing, as `time` measured it")
+    parser.add_argument("--workers", type=int, default=2, help="the local workers it ran with")
+    parser.add_argument("--out", type=Path)
+    args = parser.parse_args()
+
+    grid = load_grid(args.grid)
+    records = read_results(args.results)
+    image_sizes = {r["run_id"]: r["config"]["image_size"] for r in by_kind(records, "train")}
+    evaluation = evaluation_rows(records, image_sizes)
+    with mock.patch.dict(cost.EVAL_TASK_FACTOR, {"cpu": {}}):
+        before = dry_run_hours(grid, args.workers)
+    payload = {
+        "grid": grid.name,
+        "results": str(args.results),
+        "workers": args.workers,
+        "wall_s": args.wall_s,
+        "dry_run_hours": {"without_task_factors": before, "with_task_factors": dry_run_hours(grid, args.workers)},
+        "evaluation": evaluation,
+        "training": training_rows(records, grid),
+    }
+    write(f"grid_cost_{grid.name}", payload, args.out)
+
+
+if __name__ == "__main__":
+    main()
