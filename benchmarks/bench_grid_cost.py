@@ -46,7 +46,7 @@ def evaluation_rows(records: list[dict], image_sizes: dict[str, int]) -> dict[st
             batch_size=record["batch_size"],
             image_size=image_sizes[record["run_id"]],
         )
-    return {task: finished(row, measured="measured_s", priced="priced_s") for task, row in rows.items()}
+    return {task: finished(row) for task, row in rows.items()}
 
 
 def training_rows(records: list[dict], grid) -> dict[str, dict]:
@@ -59,12 +59,13 @@ def training_rows(records: list[dict], grid) -> dict[str, dict]:
         row["runs"] += 1
         row["measured_s"] += record["timings"]["train_s"]
         row["priced_s"] += cost.train_seconds(run, record["train_steps"], record["device"])
-    return {key: finished(row, measured="measured_s", priced="priced_s") for key, row in sorted(rows.items())}
+    return {key: finished(row) for key, row in sorted(rows.items())}
 
 
-def finished(row: dict, measured: str, priced: str) -> dict:
+def finished(row: dict) -> dict:
+    """`row` with its seconds rounded and its factor: measured over priced seconds."""
     row = {k: round(v, 1) if isinstance(v, float) else v for k, v in row.items()}
-    return {**row, "factor": round(row[measured] / row[priced], 2)}
+    return {**row, "factor": round(row["measured_s"] / row["priced_s"], 2)}
 
 
 def dry_run_hours(grid, workers: int) -> float:
@@ -86,6 +87,13 @@ def main() -> None:
 
     grid = load_grid(args.grid)
     records = read_results(args.results)
+    foreign = {r["run_id"] for r in records} - {run.run_id for run in grid.expand()}
+    if not records or foreign:
+        parser.error(
+            f"--results {args.results}: "
+            + (f"{len(foreign)} runs not in grid {grid.name}" if foreign else "empty")
+            + f"; give the results file that `obsbench run {args.grid}` wrote"
+        )
     image_sizes = {r["run_id"]: r["config"]["image_size"] for r in by_kind(records, "train")}
     evaluation = evaluation_rows(records, image_sizes)
     with mock.patch.dict(cost.EVAL_TASK_FACTOR, {"cpu": {}}):

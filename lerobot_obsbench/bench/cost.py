@@ -91,9 +91,7 @@ def episode_seconds(
 def eval_seconds(spec: EvalSpec, run: RunSpec, device: str, batch_size: int = 1) -> float:
     """`spec`, an evaluation of `run`, with `batch_size` episodes in lockstep."""
     rlbench = run.rlbench_task is not None
-    return episode_seconds(
-        spec.episodes, spec.max_steps, device, rlbench, batch_size, run.image_size, task=None if rlbench else run.task
-    )
+    return episode_seconds(spec.episodes, spec.max_steps, device, rlbench, batch_size, run.image_size, task=run.task)
 
 
 def demo_seconds(grid: Grid, run: RunSpec, episodes: int, device: str) -> float:
