@@ -117,3 +117,32 @@ def write_bag(path: str | Path, camera: SyntheticRGBD, frames: Iterable[tuple[np
         sensor.close()
     del recorder  # flushes and closes the file
     return count
+
+
+def aligned_by_librealsense(path: str | Path) -> np.ndarray:
+    """librealsense's own `rs.align` to colour of the first full frameset of a recording: the depth (h, w) in the
+    recording's depth units. The recording is played as fast as it is read, every sensor opened before any starts
+    (as the camera plays it), so its first framesets are not lost to a loaded machine's schedule."""
+    rs = import_realsense()
+    device = rs.context().load_device(str(path))
+    player = device.as_playback()
+    player.set_real_time(False)
+    player.pause()
+    sensors, syncer = device.query_sensors(), rs.syncer()
+    for sensor in sensors:
+        sensor.open(sensor.get_stream_profiles()[0])
+    for sensor in sensors:
+        sensor.start(syncer)
+    player.resume()
+    try:
+        while True:
+            frames = syncer.wait_for_frames(60_000)
+            if frames.get_color_frame() and frames.get_depth_frame():
+                return np.asanyarray(rs.align(rs.stream.color).process(frames).get_depth_frame().get_data()).copy()
+    finally:
+        player.pause()
+        while syncer.poll_for_frames():
+            pass
+        for sensor in sensors:
+            sensor.stop()
+            sensor.close()

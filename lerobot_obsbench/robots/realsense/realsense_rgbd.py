@@ -22,7 +22,7 @@ from __future__ import annotations
 import logging
 import time
 from pathlib import Path
-from threading import Event, Lock, Thread
+from threading import Condition, Event, Thread
 from typing import Any
 
 import cv2
@@ -117,6 +117,10 @@ class CameraReadError(ObsBenchError, RuntimeError):
     """A frame was asked for before the camera delivered one, or after its reader thread failed."""
 
 
+class RecordingEndedError(ObsBenchError, EOFError):
+    """A played-back recording has ended and every frameset it held was returned."""
+
+
 class RealSenseRGBDCamera(Camera):
     """See the module docstring. `read()` / `async_read()` / `read_latest()` return colour (H, W, 3) uint8 like any
     LeRobot camera; `read_rgbd()` / `async_read_rgbd()` return (colour, depth (H, W, 1) uint16 mm) of one frameset.
@@ -130,13 +134,18 @@ class RealSenseRGBDCamera(Camera):
         self._syncer = None
         self._playback = None  # the device of a played-back recording
         self._thread: Thread | None = None
+        self._flush_thread: Thread | None = None  # closes a played-back recording's sensors at its end
         self._stop = Event()
-        self._new_frame = Event()
         self._consumed = Event()  # lossless playback: the newest frameset was returned
-        self._lock = Lock()
+        # guards what the reader thread hands over; notified when a frameset arrives, the reader fails or a
+        # recording ends
+        self._changed = Condition()
         # (colour, depth, colour frame number, host time of arrival) of the newest frameset
         self._latest: tuple[np.ndarray, np.ndarray, int, float] | None = None
+        self._unread = False  # the newest frameset has not been returned yet
+        self._ended = False  # the played-back recording has ended (no frameset will follow the newest)
         self._error: BaseException | None = None
+        self.framesets_received = 0  # framesets the reader registered since connecting
         self.depth_scale: float | None = None  # metres per device depth unit, read from the device
         self.K: np.ndarray | None = None  # (3, 3) float32 of the returned frames
         self.serial_number: str = config.serial_number
@@ -196,29 +205,42 @@ class RealSenseRGBDCamera(Camera):
         by_sensor: dict[str, tuple[Any, list]] = {}  # one sensor may carry both (the D405's colour is its depth's)
         for sensor, stream in (colour, depth):
             by_sensor.setdefault(sensor.get_info(rs.camera_info.name), (sensor, []))[1].append(stream)
-        started = []
-        try:
-            for sensor, streams in by_sensor.values():
-                sensor.open(streams if len(streams) > 1 else streams[0])
-                sensor.start(self._syncer)
-                started.append(sensor)
-        except RuntimeError as error:
-            self._stop_sensors(started)
-            raise CameraStartError(f"{self}: could not start colour + depth ({error}).") from error
-        self._sensors = started
         self._playback = playback if cfg.playback_file else None
+        self._sensors = self._open_and_start(by_sensor)
         self._consumed.set()
         self._stop.clear()
+        self._latest, self._unread, self._ended, self._error, self.framesets_received = None, False, False, None, 0
+        if self._playback is not None:
+            # before the reader starts: until then the player reports "stopped", which the reader takes for the end
+            self._playback.resume()
         self._thread = Thread(target=self._read_loop, name=f"{self}_reader", daemon=True)
         self._thread.start()
-        if self._playback is not None:
-            self._playback.resume()
         if warmup:
             deadline = time.perf_counter() + max(cfg.warmup_s, 0.0)
             self.async_read_rgbd(timeout_ms=5000)
             while time.perf_counter() < deadline:
                 self.async_read_rgbd(timeout_ms=5000)
         logger.info(f"{self} connected: depth scale {self.depth_scale} m, K\n{self.K}")
+
+    def _open_and_start(self, by_sensor: dict[str, tuple[Any, list]]) -> list:
+        """Open every sensor, then start them into the syncer. All opened first: a recording's player reads its
+        first item when the first sensor starts, from the streams opened by then, so a stream opened later loses
+        the frames read before it (a two-frameset recording: all its depth)."""
+        opened, started = [], []
+        try:
+            for sensor, streams in by_sensor.values():
+                sensor.open(streams if len(streams) > 1 else streams[0])
+                opened.append(sensor)
+            for sensor in opened:
+                self._start_sensor(sensor)
+                started.append(sensor)
+        except RuntimeError as error:
+            self._stop_sensors(started, opened)
+            raise CameraStartError(f"{self}: could not start colour + depth ({error}).") from error
+        return opened
+
+    def _start_sensor(self, sensor) -> None:
+        sensor.start(self._syncer)
 
     def _stream_profile(self, rs, device, kind, fmt) -> tuple[Any, Any]:
         """(sensor, stream profile) of `kind` in the configured size, fps and format; ConnectionError naming the
@@ -269,14 +291,42 @@ class RealSenseRGBDCamera(Camera):
         as_batch = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)[None]
         self._registration = (as_batch(self.K_depth), as_batch(self.depth_to_colour), as_batch(self.K))
 
+    def _syncer_output(self):
+        """What the syncer gives, until the camera stops or a played-back recording has ended: the player stops at
+        the end of its file with frames still queued in its sensors; closing them delivers those (librealsense
+        flushes a sensor's queue when it closes), so the end comes after the last frameset, whatever the load."""
+        flushed: Event | None = None  # set once the stopped player's sensors delivered what they held
+        while not self._stop.is_set():
+            ok, frames = self._syncer.try_wait_for_frames(100)
+            if ok:
+                yield frames
+            elif flushed is None:
+                if (
+                    self._playback is not None
+                    and self._playback.current_status() == import_realsense().playback_status.stopped
+                ):
+                    flushed = Event()
+                    self._flush_thread = Thread(
+                        target=self._close_played_sensors, args=(flushed,), name=f"{self}_flush", daemon=True
+                    )
+                    self._flush_thread.start()
+            elif flushed.is_set():
+                frames = self._syncer.poll_for_frames()
+                if not frames:
+                    return
+                yield frames
+
+    def _close_played_sensors(self, done: Event) -> None:
+        # in its own thread: the player's sensors hand their last frames to the syncer, which the reader drains
+        for sensor in self._sensors:
+            sensor.close()
+        done.set()
+
     def _framesets(self):
         """(colour frame, depth frame) pairs as the syncer gives them. At start it hands out a stream's first frame
         alone (nothing to pair it with yet): two such frames with one timestamp are one frameset."""
         alone = {}
-        while not self._stop.is_set():
-            ok, frames = self._syncer.try_wait_for_frames(1000)
-            if not ok:
-                continue
+        for frames in self._syncer_output():
             colour, depth = frames.get_color_frame(), frames.get_depth_frame()
             if colour and depth:
                 yield colour, depth
@@ -311,14 +361,19 @@ class RealSenseRGBDCamera(Camera):
                         if self._stop.is_set():
                             return
                     self._consumed.clear()
-                with self._lock:
-                    if self._new_frame.is_set():
+                with self._changed:
+                    if self._unread:
                         self.frames_dropped += 1
-                    self._latest = item
-                self._new_frame.set()
+                    self._latest, self._unread = item, True
+                    self.framesets_received += 1
+                    self._changed.notify_all()
+            with self._changed:
+                self._ended = not self._stop.is_set()
+                self._changed.notify_all()
         except Exception as error:  # surfaced to the reader, never swallowed
-            self._error = error
-            self._new_frame.set()
+            with self._changed:
+                self._error = error
+                self._changed.notify_all()
 
     @property
     def lossless(self) -> bool:
@@ -338,11 +393,17 @@ class RealSenseRGBDCamera(Camera):
 
     def _take(self, timeout_ms: float, wait: bool) -> tuple[np.ndarray, np.ndarray, int, float]:
         """The newest frameset; `wait`: block for an unread one and mark it read (a peek otherwise)."""
-        if wait and not self._new_frame.wait(timeout_ms / 1000):
-            raise CameraTimeoutError(f"{self}: no new frame within {timeout_ms} ms.")
-        if self._error is not None:
-            raise CameraReadError(f"{self}: the reader thread failed: {self._error!r}") from self._error
-        with self._lock:
+        with self._changed:
+            news = lambda: self._unread or self._ended or self._error is not None
+            if wait and not self._changed.wait_for(news, timeout_ms / 1000):
+                raise CameraTimeoutError(f"{self}: no new frame within {timeout_ms} ms.")
+            if self._error is not None:
+                raise CameraReadError(f"{self}: the reader thread failed: {self._error!r}") from self._error
+            if wait and not self._unread:
+                raise RecordingEndedError(
+                    f"{self}: the recording {self.config.playback_file} has ended; all {self.framesets_received} "
+                    "of its framesets were returned."
+                )
             if self._latest is None:
                 raise CameraReadError(f"{self} has not captured a frame yet.")
             if wait:
@@ -350,7 +411,7 @@ class RealSenseRGBDCamera(Camera):
             return self._latest
 
     def _mark_read(self) -> None:
-        self._new_frame.clear()
+        self._unread = False
         self._consumed.set()
 
     @check_if_not_connected
@@ -362,7 +423,7 @@ class RealSenseRGBDCamera(Camera):
     @check_if_not_connected
     def read_rgbd(self) -> tuple[np.ndarray, np.ndarray]:
         """Wait for a frameset newer than this call, then return its (colour, depth)."""
-        with self._lock:
+        with self._changed:
             self._mark_read()
         return self.async_read_rgbd(timeout_ms=10_000)
 
@@ -385,21 +446,26 @@ class RealSenseRGBDCamera(Camera):
         return self.read_latest_rgbd(max_age_ms)[0]
 
     @staticmethod
-    def _stop_sensors(sensors) -> None:
-        for sensor in sensors:
+    def _stop_sensors(started, opened=None) -> None:
+        for sensor in started:
             sensor.stop()
+        for sensor in started if opened is None else opened:
             sensor.close()
 
     @check_if_not_connected
     def disconnect(self) -> None:
         self._stop.set()
         if self._thread is not None:
-            self._thread.join(timeout=2)
+            self._thread.join()  # it checks the stop at least every 0.1 s
         if self._playback is not None:  # a recording played as fast as it is read waits for its reader: release it
             self._playback.pause()
             while self._syncer.poll_for_frames():
                 pass
-        self._stop_sensors(self._sensors)
+            # the recording's end closes its sensors, flushing their frames into the syncer: drained until done
+            while self._flush_thread is not None and self._flush_thread.is_alive():
+                self._syncer.poll_for_frames()
+                self._flush_thread.join(0.05)
+        self._stop_sensors(self._sensors, [] if self._flush_thread is not None else None)
         self._sensors = None
-        self._thread = None
+        self._thread = self._flush_thread = None
         logger.info(f"{self} disconnected.")
