@@ -21,6 +21,13 @@
    `apply()` wraps LeRobot's `encode_video_frames` in `thread_scheduling_kept()`, which gives the calling thread
    its policy back.
 
+4. The reason for a refused config. LeRobot's commands build configs with draccus, which turns every TypeError or
+   ValueError raised while a dataclass is built into "Couldn't instantiate class ... using the given arguments",
+   keeping the reason only as the exception's cause; LeRobot then prints the wrapper alone. `apply()` wraps
+   `draccus.parse` (which LeRobot's parser and its `from_pretrained` loaders call) so that a failure caused by one
+   of the plugin's own refusals (an `ObsBenchError`) is raised as draccus' own `DecodingError` carrying that
+   message: LeRobot prints it as the one error line (`error: `policy`: ...`). Other failures are left as they are.
+
 Fixes 1 and 3 replace LeRobot functions for every process that imports the plugin (LeRobot's plugin discovery imports it
 into every `lerobot-*` command), so `apply()` patches only the LeRobot version it was written and tested for
 (`LEROBOT_VERSION`); on any other it warns and leaves LeRobot as it is.
@@ -37,6 +44,7 @@ import os
 from importlib import metadata
 
 import datasets
+import draccus
 import numpy as np
 import PIL.Image
 import torch
@@ -47,6 +55,8 @@ from lerobot.datasets.dataset_reader import DatasetReader
 from lerobot.datasets.io_utils import pil_to_chw_tensor
 from lerobot.datasets.language import LANGUAGE_COLUMNS
 
+from lerobot_obsbench.errors import ObsBenchError
+
 logger = logging.getLogger(__name__)
 
 FORMAT_TYPE = "lerobot_obsbench_torch"
@@ -54,6 +64,7 @@ LEROBOT_VERSION = "0.6.1"  # the version these patches replace methods of
 _STOCK = {"query": DatasetReader._query_hf_dataset, "load": DatasetReader._load_hf_dataset}
 # LeRobot's video encoder under each name it is called by (each module holds its own)
 _STOCK_ENCODERS = {module: module.encode_video_frames for module in (video_utils, dataset_writer, dataset_tools)}
+_STOCK_PARSE = draccus.parse
 
 
 class LeRobotTorchFormatter(TorchFormatter):
@@ -146,8 +157,33 @@ def keeping_scheduling(encode):
     return encode_keeping_scheduling
 
 
+def plugin_refusal(error: BaseException) -> ObsBenchError | None:
+    """The plugin's own refusal behind `error` (followed through its causes), if there is one."""
+    seen = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, ObsBenchError):
+            return error
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
+    return None
+
+
+@functools.wraps(_STOCK_PARSE)
+def parse_with_reasons(*args, **kwargs):
+    """`draccus.parse`, raising a plugin refusal's own message as the `DecodingError` LeRobot prints (fix 4)."""
+    try:
+        return _STOCK_PARSE(*args, **kwargs)
+    except draccus.utils.ParsingError as error:
+        refusal = plugin_refusal(error)
+        if refusal is None:
+            raise
+        raise draccus.utils.DecodingError(getattr(error, "key_path", ()), str(refusal)) from refusal
+
+
 def apply(lerobot_version: str | None = None) -> bool:
-    """Patch LeRobot if it is the version the patches were written for; returns whether it patched."""
+    """Patch LeRobot if it is the version the patches were written for; returns whether it patched. The parser's
+    reasons (fix 4) are given on any version: that wrapper only rewrites the message of a failure."""
+    draccus.parse = parse_with_reasons
     version = lerobot_version or metadata.version("lerobot")
     if version != LEROBOT_VERSION:
         logger.warning(

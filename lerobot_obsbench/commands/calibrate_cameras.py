@@ -9,6 +9,7 @@ from pathlib import Path
 
 from lerobot_obsbench.commands import common
 from lerobot_obsbench.errors import UsageError
+from lerobot_obsbench.numeric import number_argument
 from lerobot_obsbench.outputs import OutputPathError, check_output_file, check_output_folder
 
 NAME = "calibrate-cameras"
@@ -29,12 +30,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--interval", type=common.non_negative_float, default=0.1, help="seconds between views")
     p.add_argument("--min-views", type=common.positive_int, default=5)
     p.add_argument(
-        "--min-corners", type=common.whole_number(4), default=12, help="refuse a view with fewer ChArUco corners"
+        "--min-corners",
+        type=number_argument(whole=True, minimum=4),
+        default=12,
+        help="refuse a view with fewer ChArUco corners",
     )
     p.add_argument(
         "--max-reprojection", type=common.positive_float, default=1.0, help="refuse a view above this RMS error (px)"
     )
-    p.add_argument("--squares", type=common.whole_number(2), nargs=2, default=(5, 7), metavar=("X", "Y"))
+    p.add_argument(
+        "--squares", type=number_argument(whole=True, minimum=2), nargs=2, default=(5, 7), metavar=("X", "Y")
+    )
     p.add_argument("--square-length", type=common.positive_float, default=0.035, help="metres, as printed")
     p.add_argument("--marker-length", type=common.positive_float, default=0.026, help="metres, as printed")
     p.add_argument("--dictionary", default="DICT_4X4_50")

@@ -18,53 +18,18 @@ import sys
 from types import ModuleType
 
 from lerobot_obsbench.errors import ObsBenchError, UsageError
+from lerobot_obsbench.numeric import number_argument
 from lerobot_obsbench.schema import MIN_IMAGE_SIZE
 
 # What a Ctrl-C keeps, for a command that does not say.
 NOTHING_HALF_WRITTEN = "nothing is left half-written; run the same command again"
 
 
-def whole_number(minimum: int):
-    """argparse type: a whole number >= `minimum` (checked before anything starts)."""
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a whole number >= {minimum}, got {text!r}") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
-        return value
-
-    return parse
-
-
-positive_int = whole_number(1)  # counts, sizes, rates
-non_negative_int = whole_number(0)  # indices
-
-
-def real_number(minimum: float, inclusive: bool, maximum: float = math.inf):
-    """argparse type: a finite number above `minimum` (or equal to it when `inclusive`), at most `maximum`."""
-    wanted = f"a finite number {'>=' if inclusive else '>'} {minimum:g}" + (
-        f" and <= {maximum:g}" if math.isfinite(maximum) else ""
-    )
-
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}") from None
-        above = value >= minimum if inclusive else value > minimum
-        if not (math.isfinite(value) and above and value <= maximum):
-            raise argparse.ArgumentTypeError(f"must be {wanted}, got {text}")
-        return value
-
-    return parse
-
-
-positive_float = real_number(0, inclusive=False)  # a size, a distance, an angle
-non_negative_float = real_number(0, inclusive=True)  # a wait
-fraction = real_number(0, inclusive=False, maximum=1)  # a share
+positive_int = number_argument(whole=True, minimum=1)  # counts, sizes, rates
+non_negative_int = number_argument(whole=True, minimum=0)  # indices
+positive_float = number_argument(above=0)  # a size, a distance, an angle
+non_negative_float = number_argument(minimum=0)  # a wait
+fraction = number_argument(above=0, maximum=1)  # a share
 
 
 def device_name(text: str) -> str:

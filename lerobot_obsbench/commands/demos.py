@@ -9,6 +9,7 @@ from pathlib import Path
 
 from lerobot_obsbench.commands import common
 from lerobot_obsbench.commands.common import frame_size, positive_int
+from lerobot_obsbench.numeric import number_argument
 
 NAME = "demos"
 HELP = (
@@ -30,7 +31,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cameras", nargs="+", default=["base_camera"])
     p.add_argument(
         "--seed-start",
-        type=common.whole_number(DEMO_SEED_START),
+        type=number_argument(whole=True, minimum=DEMO_SEED_START),
         default=DEMO_SEED_START,
         help=f"first demonstration seed (>= "
         f"{DEMO_SEED_START}; lower seeds are reserved for evaluation and checkpoint selection)",

@@ -131,7 +131,7 @@ def test_small_probes_get_one_line_answers(tmp_path, capsys):
 
     with pytest.raises(SystemExit):
         main(["demos", "--task", "PushCube-v1", "--episodes", "0", "--out", str(tmp_path / "d")])
-    assert "argument --episodes: must be >= 1, got 0" in capsys.readouterr().err
+    assert "argument --episodes: must be a whole number >= 1, got 0" in capsys.readouterr().err
     assert not (tmp_path / "d").exists()
 
     missing = tmp_path / "run" / "pretrained_model"

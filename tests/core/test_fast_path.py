@@ -4,7 +4,6 @@ ray-cast frames and random clouds; and the rollout's real-time tools."""
 from __future__ import annotations
 
 import threading
-import time
 
 import numpy as np
 import pytest
@@ -202,30 +201,27 @@ def test_step_timer_summary_and_warning():
 def test_async_chunks_follow_the_newest_plan_without_blocking():
     """A policy four control steps slow: the loop never waits after the first chunk, each step takes its own
     index in the newest chunk, and a plan that runs out repeats its last action (counted)."""
-    release = threading.Event()
+    release = threading.Semaphore(0)  # one inference finishes per release: the test decides when, not a clock
     seen = []
 
     def infer(observation):
         seen.append(observation)
-        release.wait(timeout=5)
-        release.clear()
+        release.acquire()
         return np.arange(observation, observation + 3, dtype=float)[:, None]  # chunk of 3 actions
 
     chunks = AsyncChunks(infer)
-    timer = threading.Timer(0.05, release.set)
-    timer.start()
+    release.release()
     assert chunks.action(0, 0)[0] == 0  # the first chunk is waited for
     actions = []
     for step in range(1, 6):  # the worker is busy with step 1's observation the whole time
         actions.append(float(chunks.action(step, step)[0]))
     assert actions == [1, 2, 2, 2, 2] and chunks.starved_steps == 3
-    release.set()
-    deadline = time.time() + 5
-    while chunks.chunks_done < 2 and time.time() < deadline:
-        time.sleep(0.01)
+    release.release()
+    with chunks._lock:  # the worker notifies its condition when it stores a chunk
+        chunks._lock.wait_for(lambda: chunks.chunks_done == 2)
     assert float(chunks.action(6, 6)[0]) == 3  # step 1's chunk holds steps 1..3: step 6 is past it
     assert seen[:2] == [0, 1]
-    release.set()
+    release.release()
     chunks.close()
 
 
