@@ -39,7 +39,8 @@ from lerobot.datasets import factory
 from lerobot.datasets.dataset_reader import DatasetReader
 from lerobot.datasets.depth_utils import MM_PER_METRE
 
-from lerobot_obsbench.errors import ObsBenchError
+from lerobot_obsbench.errors import ConfigError
+from lerobot_obsbench.numeric import number_from_environment
 from lerobot_obsbench.patches import LeRobotTorchFormatter
 
 logger = logging.getLogger(__name__)
@@ -71,19 +72,13 @@ class PolicyQuery(dict):
 def reader_choice() -> str:
     choice = os.environ.get(READER_ENV, "memory")
     if choice not in READERS:
-        raise ObsBenchError(f"{READER_ENV}={choice!r}: choose one of {', '.join(READERS)} (default memory).")
+        raise ConfigError(f"{READER_ENV}={choice!r}: choose one of {', '.join(READERS)} (default memory).")
     return choice
 
 
 def memory_budget_bytes() -> int:
-    raw = os.environ.get(MEMORY_ENV, str(DEFAULT_MEMORY_MB))
-    try:
-        budget = float(raw)
-    except ValueError:
-        budget = -1.0
-    if not budget >= 0:  # also refuses NaN
-        raise ObsBenchError(f"{MEMORY_ENV}={raw!r}: give the memory budget in MiB, a number >= 0 (0 streams).")
-    return int(budget * 2**20)
+    """The budget of `OBSBENCH_DATASET_MEMORY_MB` (MiB; 0 streams) in bytes."""
+    return int(number_from_environment(MEMORY_ENV, DEFAULT_MEMORY_MB, minimum=0) * 2**20)
 
 
 def resolve_delta_timestamps(cfg, ds_meta):

@@ -108,5 +108,7 @@ def number_from_environment(variable: str, default: int | float, **bounds) -> in
     try:
         value = parse_number(raw, whole=bounds.get("whole", False))
     except ValueError:
-        raise ConfigError(f"{variable}={raw!r}: must be {describe(**bounds)}") from None
-    return check_number(variable, value, **bounds)
+        value = None
+    if not _fits(value, **bounds):
+        raise ConfigError(f"{variable}={raw!r}: must be {describe(**bounds)}")
+    return value

@@ -40,6 +40,7 @@ from torch import Tensor, nn
 from lerobot_obsbench import geometry
 from lerobot_obsbench.augmentations import Augmenter, parse_augment
 from lerobot_obsbench.errors import ConfigError
+from lerobot_obsbench.numeric import check_number, check_numbers
 from lerobot_obsbench.schema import (
     BLIND_SPACES,
     CONTROL_SPACES,
@@ -81,12 +82,13 @@ logger = logging.getLogger(__name__)
 
 
 def check_geometry(workspace, voxel_size: float, depth_clip) -> None:
-    """Workspace box, voxel edge and depth range."""
-    if len(workspace) != 6 or any(workspace[2 * i] >= workspace[2 * i + 1] for i in range(3)):
+    """Workspace box, voxel edge and depth range (metres)."""
+    box = check_numbers("workspace", workspace, length=6)
+    if any(box[2 * i] >= box[2 * i + 1] for i in range(3)):
         raise ConfigError(f"workspace must be (xmin, xmax, ymin, ymax, zmin, zmax) with min < max; got {workspace}")
-    if voxel_size <= 0:
-        raise ConfigError(f"voxel_size must be > 0 metres; got {voxel_size}")
-    if len(depth_clip) != 2 or not depth_clip[0] < depth_clip[1]:
+    check_number("voxel_size", voxel_size, above=0)
+    near, far = check_numbers("depth_clip", depth_clip, length=2, minimum=0)
+    if not near < far:
         raise ConfigError(f"depth_clip must be (near, far) in metres with near < far; got {depth_clip}")
 
 
@@ -117,8 +119,7 @@ class AdapterConfig:
         check_choice("depth_normalization", self.depth_normalization, DEPTH_NORMALIZATIONS)
         check_choice("point_pipeline", self.point_pipeline, POINT_PIPELINES)
         check_choice("point_normalization", self.point_normalization, POINT_NORMALIZATIONS)
-        if self.workspace_jitter < 0:
-            raise ConfigError(f"workspace_jitter must be >= 0 metres; got {self.workspace_jitter}")
+        check_number("workspace_jitter", self.workspace_jitter, minimum=0)
         self.augmentations()  # each name exists and applies to the space
         self._check_space()
         normalised = {

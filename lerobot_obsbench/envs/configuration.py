@@ -12,7 +12,8 @@ from lerobot_obsbench.envs.base_task import TASKS, check_cameras, task_spec
 from lerobot_obsbench.envs.maniskill import ACTION_DIMS, CONTROL_FPS, CONTROL_MODES, DEFAULT_CONTROL_MODE, STATE_DIM
 from lerobot_obsbench.envs.perturbations import parse_perturbation
 from lerobot_obsbench.errors import ConfigError
-from lerobot_obsbench.schema import ACTION_KEY, ENV_STATE_KEY, STATE_KEY, image_key
+from lerobot_obsbench.numeric import check_number
+from lerobot_obsbench.schema import ACTION_KEY, ENV_STATE_KEY, MIN_IMAGE_SIZE, STATE_KEY, image_key
 
 
 @EnvConfig.register_subclass("obsbench")
@@ -47,6 +48,14 @@ class ObsBenchEnvConfig(EnvConfig):
         check_cameras(spec, self.cameras)
         if self.control_mode not in CONTROL_MODES:
             raise ConfigError(f"control_mode must be one of {CONTROL_MODES}; got {self.control_mode!r}")
+        check_number("image_size (pixels)", self.image_size, whole=True, minimum=MIN_IMAGE_SIZE)
+        check_number("fps", self.fps, whole=True, minimum=1)
+        if self.episode_length is not None:  # 0 would mean the task's own budget: refused rather than reinterpreted
+            check_number(
+                "episode_length (steps; or None for the task's own)", self.episode_length, whole=True, minimum=1
+            )
+        if self.seed is not None:
+            check_number("seed (or None)", self.seed, whole=True, minimum=0)
         size = (self.image_size, self.image_size, 3)
         self.features = {
             "action": PolicyFeature(FeatureType.ACTION, (ACTION_DIMS[self.control_mode],)),
@@ -70,7 +79,7 @@ class ObsBenchEnvConfig(EnvConfig):
 
     @property
     def gym_kwargs(self) -> dict:
-        steps = self.episode_length or task_spec(self.task).max_steps
+        steps = task_spec(self.task).max_steps if self.episode_length is None else self.episode_length
         # `max_episode_steps` is gym.make's TimeLimit (lerobot-eval reads it); `episode_length` reaches ManiSkill.
         return {
             "cameras": list(self.cameras),

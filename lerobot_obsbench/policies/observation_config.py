@@ -11,6 +11,7 @@ from typing import ClassVar
 from lerobot.optim.optimizers import AdamWConfig
 
 from lerobot_obsbench.camera_calibration import dataset_calibration
+from lerobot_obsbench.dataset_reads import memory_budget_bytes, reader_choice
 from lerobot_obsbench.encoders import (
     EncoderContext,
     available_encoders,
@@ -19,6 +20,7 @@ from lerobot_obsbench.encoders import (
     encoder_info,
 )
 from lerobot_obsbench.errors import ConfigError
+from lerobot_obsbench.numeric import check_number, check_numbers
 from lerobot_obsbench.policies.onecycle import OneCycleSchedulerConfig
 from lerobot_obsbench.schema import (
     DEPTH_PREFIX,
@@ -211,15 +213,35 @@ class ObservationConfig:
             self.encoder = default_encoder(self.obs_space)
         check_encoder(self.encoder, self.obs_space)
         check_choice("sampling", self.sampling, SAMPLING)
-        if self.image_input_size is not None and self.image_input_size < 16:
-            raise ConfigError(f"image_input_size must be >= 16 pixels or None; got {self.image_input_size}")
-        if self.optimizer_grad_clip_norm < 0:
-            raise ConfigError(f"optimizer_grad_clip_norm must be >= 0; got {self.optimizer_grad_clip_norm}")
-        for name in ("num_tokens", "knn"):
-            if getattr(self, name) < 1:
-                raise ConfigError(f"{name} must be >= 1; got {getattr(self, name)}")
+        self.check_numbers()
         self.check_ablations()
         self.check_replaced_fields()
+
+    # Numeric fields -> their bounds (`numeric.check_number`); the adapter checks its own (workspace, voxel_size,
+    # depth_clip, workspace_jitter), the policy configs add theirs.
+    NUMBER_FIELDS: ClassVar[dict[str, dict]] = {
+        "num_tokens": {"whole": True, "minimum": 1},
+        "knn": {"whole": True, "minimum": 1},
+        "optimizer_lr": {"above": 0},
+        "optimizer_weight_decay": {"minimum": 0},
+        "optimizer_eps": {"above": 0},
+        "optimizer_grad_clip_norm": {"minimum": 0},
+        "scheduler_pct_start": {"above": 0, "below": 1},
+        "scheduler_div_factor": {"above": 0},
+        "scheduler_final_div_factor": {"above": 0},
+    }
+
+    def check_numbers(self) -> None:
+        """Every numeric field finite and within its bounds, named when it is not (a NaN passes `<` checks), and
+        the settings lerobot-train's data loading reads from the environment (checked here, where LeRobot's parser
+        shows the reason, rather than as a traceback once the dataset loads)."""
+        for name, bounds in self.NUMBER_FIELDS.items():
+            check_number(name, getattr(self, name), **bounds)
+        if self.image_input_size is not None:
+            check_number("image_input_size (pixels; or None)", self.image_input_size, whole=True, minimum=16)
+        check_numbers("optimizer_betas", self.optimizer_betas, length=2, minimum=0, below=1)
+        reader_choice()
+        memory_budget_bytes()
 
     def check_ablations(self) -> None:
         """Design choices that only some encoders have: refuse the others instead of ignoring them (the adapter's

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from lerobot_obsbench.cli import main
+from tests.commands import bad_inputs_grid, bad_inputs_outputs, bad_inputs_validate
 from tests.support import rlbench_fixtures
 
 
@@ -550,6 +551,9 @@ ROWS = [
     (refine_one_camera, ["obsbench refine-cameras: error: give two or more cameras"]),
     (encoders_of_a_typo, ["argument --obs-space: invalid choice: 'pointclould'"]),
     (preset_of_a_typo, ["argument --preset: invalid choice: 'papper'"]),
+    *bad_inputs_validate.ROWS,
+    *bad_inputs_outputs.ROWS,
+    *bad_inputs_grid.ROWS,
 ]
 # Commands whose failure is not one error line: `doctor` reports every check it ran (exit 2 when one fails),
 # `find-cameras` lists what it finds (none is an answer, not an error); both are covered below.

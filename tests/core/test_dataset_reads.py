@@ -162,14 +162,17 @@ def test_stock_policies_and_datasets_opened_by_hand_read_everything(dataset):
     ("variable", "value", "message"),
     [
         (dataset_reads.READER_ENV, "fast", "choose one of memory, filtered, stock"),
-        (dataset_reads.MEMORY_ENV, "lots", "a number >= 0"),
-        (dataset_reads.MEMORY_ENV, "-1", "a number >= 0"),
-        (dataset_reads.MEMORY_ENV, "nan", "a number >= 0"),
+        (dataset_reads.MEMORY_ENV, "lots", "must be a finite number >= 0"),
+        (dataset_reads.MEMORY_ENV, "-1", "must be a finite number >= 0"),
+        (dataset_reads.MEMORY_ENV, "nan", "must be a finite number >= 0"),
     ],
 )
 def test_bad_settings_are_refused_naming_the_variable(dataset, monkeypatch, variable, value, message):
-    monkeypatch.setenv(variable, value)
+    """When the policy config is built (where lerobot-train's parser shows the reason), and by the reader."""
     config = make_config(ObsACTConfig, "rgb", None)
+    monkeypatch.setenv(variable, value)
+    with pytest.raises(ObsBenchError, match=f"{variable}=.*{message}"):
+        make_config(ObsACTConfig, "rgb", None)
     with pytest.raises(ObsBenchError, match=f"{variable}=.*{message}"):
         LeRobotDataset(
             "local/test",

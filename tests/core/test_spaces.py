@@ -65,7 +65,7 @@ def test_workspace_jitter_moves_the_crop_in_training_only(batch):
     assert len(counts) > 1
     exact = ObservationAdapter(AdapterConfig("pointcloud", [CAM], workspace=tight)).eval()(batch).mask.sum()
     assert all(int(adapter.eval()(batch).mask.sum()) == int(exact) for _ in range(3))
-    with pytest.raises(ValueError, match="workspace_jitter must be >= 0"):
+    with pytest.raises(ValueError, match="workspace_jitter must be a finite number >= 0"):
         ObservationAdapter(AdapterConfig("pointcloud", [CAM], workspace_jitter=-0.01))
 
 
