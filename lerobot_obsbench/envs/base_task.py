@@ -12,6 +12,7 @@ selection VALIDATION_SEEDS). The three ranges never overlap, so no evaluation ep
 
 from __future__ import annotations
 
+import difflib
 import math
 from typing import ClassVar
 
@@ -167,7 +168,9 @@ def check_cameras(spec: Task, cameras, rendered: list[str] | None = None) -> Non
 
 def task_spec(name: str) -> Task:
     if name not in TASKS:
-        raise TaskError(f"Unknown task {name!r}. OBSBench tasks: {', '.join(TASKS)}.")
+        close = difflib.get_close_matches(str(name), TASKS, n=3)
+        hint = f" (did you mean {' or '.join(close)}?)" if close else ""
+        raise TaskError(f"Unknown task {name!r}{hint}. OBSBench tasks: {', '.join(TASKS)}.")
     return TASKS[name]
 
 
