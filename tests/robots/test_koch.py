@@ -214,3 +214,19 @@ def test_stock_command_lines_parse_the_plugin_types(tmp_path):
     assert config.episodes == 20 and config.episode_time_s == 30.0 and args.device_options == robot
     single = ["--robot.type=obsbench_koch_follower", "--robot.port=/dev/ttyACM0", "--robot.max_relative_target=5"]
     assert draccus.parse(TeleoperateConfig, args=single + ["--teleop.type=koch_leader", "--teleop.port=/dev/x"])
+
+
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (lambda: KochFollowerArmConfig(port="p", max_relative_target=float("nan")), "max_relative_target must be"),
+        (
+            lambda: KochFollowerArmConfig(port="p", max_relative_target={"gripper": -1.0}),
+            r"max_relative_target\[gripper\]",
+        ),
+        (lambda: KochLeaderArmConfig(port="p", gripper_open_pos=float("inf")), "gripper_open_pos must be"),
+    ],
+)
+def test_arm_numbers_are_refused_when_not_finite_or_out_of_range(make, message):
+    with pytest.raises(ValueError, match=message):
+        make()

@@ -240,6 +240,10 @@ def test_unknown_serial_names_the_cameras_found(monkeypatch):
         ({"serial_number": "1", "downsample": 7}, "downsample"),
         ({"serial_number": "1", "depth_filters": ["median"]}, "depth_filters"),
         ({"serial_number": "1", "sync_mode": "leader"}, "sync_mode"),
+        ({"serial_number": "1", "downsample": 0}, "downsample must be a whole number >= 1; got 0"),
+        ({"serial_number": "1", "fps": -30}, "fps must be a whole number >= 1; got -30"),
+        ({"serial_number": "1", "warmup_s": float("nan")}, "warmup_s must be a finite number >= 0; got nan"),
+        ({"serial_number": "1", "max_distortion": float("inf")}, "max_distortion must be a finite number >= 0"),
     ],
 )
 def test_config_refuses_bad_values(fields, message):

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from lerobot_obsbench.numeric import check_number
+
 
 @dataclass
 class KochFollowerArmConfig:
@@ -17,6 +19,13 @@ class KochFollowerArmConfig:
     # Degrees instead of LeRobot's [-100, 100] range for the joints.
     use_degrees: bool = False
 
+    def __post_init__(self) -> None:
+        limits = self.max_relative_target
+        for motor, limit in (
+            limits.items() if isinstance(limits, dict) else [("", limits)] if limits is not None else []
+        ):
+            check_number(f"max_relative_target{f'[{motor}]' if motor else ''}", limit, above=0)
+
 
 @dataclass
 class KochLeaderArmConfig:
@@ -24,3 +33,6 @@ class KochLeaderArmConfig:
     port: str
     # Gripper position the leader springs back to (LeRobot's `koch_leader` default).
     gripper_open_pos: float = 50.0
+
+    def __post_init__(self) -> None:
+        check_number("gripper_open_pos", self.gripper_open_pos, minimum=-100, maximum=100)

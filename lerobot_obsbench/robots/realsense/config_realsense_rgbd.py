@@ -7,11 +7,21 @@ from dataclasses import dataclass, field
 from lerobot.cameras.configs import CameraConfig
 
 from lerobot_obsbench.errors import ConfigError
+from lerobot_obsbench.numeric import check_number
 
 # librealsense post-processing filters the camera can apply to the depth before registering it, in the order given.
 DEPTH_FILTERS = ("spatial", "temporal", "hole_filling")
 # Hardware synchronisation between cameras: librealsense's `inter_cam_sync_mode` values (D400 series).
 SYNC_MODES = {"off": 0, "master": 1, "slave": 2}
+# Numeric fields -> their bounds (`numeric.check_number`).
+NUMBER_FIELDS = {
+    "fps": {"whole": True, "minimum": 1},
+    "width": {"whole": True, "minimum": 1},
+    "height": {"whole": True, "minimum": 1},
+    "downsample": {"whole": True, "minimum": 1},
+    "max_distortion": {"minimum": 0},
+    "warmup_s": {"minimum": 0},
+}
 
 
 @CameraConfig.register_subclass("obsbench_realsense_rgbd")
@@ -54,7 +64,9 @@ class RealSenseRGBDCameraConfig(CameraConfig):
             )
         if None in (self.fps, self.width, self.height):
             raise ConfigError("obsbench_realsense_rgbd: fps, width and height must all be set (e.g. 30, 640, 480).")
-        if self.downsample < 1 or self.width % self.downsample or self.height % self.downsample:
+        for name, bounds in NUMBER_FIELDS.items():
+            check_number(f"obsbench_realsense_rgbd: {name}", getattr(self, name), **bounds)
+        if self.width % self.downsample or self.height % self.downsample:
             raise ConfigError(
                 f"obsbench_realsense_rgbd: downsample={self.downsample} must be a positive divisor of width "
                 f"{self.width} and height {self.height}."
