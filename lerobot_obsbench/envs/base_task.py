@@ -24,6 +24,10 @@ EVAL_SEED_START = 0  # evaluation: seeds 0 .. 9_999 (the paper uses 400 episodes
 VALIDATION_SEED_START = 10_000  # checkpoint selection: 10_000 .. 19_999
 DEMO_SEED_START = 100_000  # demonstrations: 100_000 and up
 CUBE_HALF_SIZE = 0.02  # metres: ManiSkill's cubes (PushCube, PullCube, PickCube, StackCube)
+# The `reach` and `lift` milestones: the gripper's centre this close to the object's (metres), and the held object
+# this far above its height at the episode's start.
+REACH_DISTANCE = 0.015
+LIFT_HEIGHT = 0.02
 
 
 SPLITS = {
@@ -122,11 +126,24 @@ class Task:
 
         return torch.cat([getattr(ms_env, name).pose.raw_pose for name in self.privileged_actors], dim=1).float()
 
-    def milestone(self, name: str, ms_env, info: dict, success):
+    def episode_start(self, ms_env) -> dict:
+        """What the milestones compare with, taken when the episodes start: the grasped object's height."""
+        return {} if self.grasped is None else {"height": getattr(ms_env, self.grasped).pose.p[..., 2].reshape(-1)}
+
+    def milestone(self, name: str, ms_env, info: dict, success, start: dict):
         """Whether milestone `name` holds at this step, per env: (num_envs,) bool tensor (`ms_env`: the unwrapped
-        ManiSkill env, `info` its batched step info, `success` its (num_envs,) success)."""
+        ManiSkill env, `info` its batched step info, `success` its (num_envs,) success, `start` what
+        `episode_start` took). Shared rules: `reach` (the gripper's centre within REACH_DISTANCE of the grasped
+        object's), `grasp` (the gripper holds it) and `lift` (held LIFT_HEIGHT above where it started)."""
+        if name == "reach":
+            held = getattr(ms_env, self.grasped).pose.p
+            return (held - ms_env.agent.tcp.pose.p).norm(dim=-1).reshape(-1) <= REACH_DISTANCE
         if name == "grasp":
             return ms_env.agent.is_grasping(getattr(ms_env, self.grasped)).reshape(-1).bool()
+        if name == "lift":
+            held = getattr(ms_env, self.grasped)
+            raised = held.pose.p[..., 2].reshape(-1) >= start["height"] + LIFT_HEIGHT
+            return raised & ms_env.agent.is_grasping(held).reshape(-1).bool()
         raise MilestoneError(f"{self.name} has no rule for milestone {name!r}")
 
     def make_expert(self, env):
@@ -150,8 +167,9 @@ def register_task(cls: type[Task]) -> type[Task]:
     unknown = [name for name in cls.objects if name not in cls.privileged_actors]
     if unknown:
         raise TaskError(f"task {cls.name!r}: objects {unknown} are not among its privileged_actors")
-    if cls.sub_success and "grasp" in cls.sub_success and cls.grasped is None:
-        raise TaskError(f"task {cls.name!r} reports a grasp milestone but names no grasped object")
+    held = [name for name in ("reach", "grasp", "lift") if name in cls.sub_success]
+    if held and cls.grasped is None:
+        raise TaskError(f"task {cls.name!r} reports milestones {held} but names no grasped object")
     if not 0 < cls.expert_success_rate <= 1:
         raise TaskError(f"task {cls.name!r}: expert_success_rate must be in (0, 1]; got {cls.expert_success_rate}")
     TASKS[cls.name] = cls()

@@ -285,6 +285,7 @@ class ObsBenchEnv(gym.Env):
         self.action_space = gym.spaces.Box(-1.0, 1.0, self.unwrapped_ms.single_action_space.shape, np.float32)
         self.observation_space = observation_space(spec, self.cameras, image_size)
         self._milestones: dict[str, bool] = {}
+        self._episode_start: dict = {}  # the task's `episode_start` of the running episodes
 
     def _move_cameras(self, control_mode: str, sensor_configs: dict, max_steps: int) -> None:
         """Rebuild the env with its cameras moved by the camera perturbation: a camera's look-at point is known only
@@ -381,16 +382,15 @@ class ObsBenchEnv(gym.Env):
 
     # ---- all envs at once: tensors (num_envs, ...) on the simulator's device -----------------------------------
 
-    def _infos(self, info: dict) -> dict:
+    def _infos(self, info: dict, stepped: bool = True) -> dict:
+        """The step's success and the milestones achieved at any step so far (none at a reset: until the
+        simulation steps, ManiSkill still reports the previous episode's contacts, a grasp among them)."""
         import torch
 
-        success = (
-            info["success"].reshape(-1).bool()
-            if "success" in info
-            else torch.zeros(self.num_envs, dtype=torch.bool, device=self.unwrapped_ms.device)
-        )
-        for name in self.spec_.sub_success:  # achieved at any step so far
-            now = self.spec_.milestone(name, self.unwrapped_ms, info, success)
+        no = torch.zeros(self.num_envs, dtype=torch.bool, device=self.unwrapped_ms.device)
+        success = info["success"].reshape(-1).bool() if "success" in info else no
+        for name in self.spec_.sub_success:
+            now = self.spec_.milestone(name, self.unwrapped_ms, info, success, self._episode_start) if stepped else no
             self._milestones[name] = now | self._milestones[name] if name in self._milestones else now
         return {"is_success": success, **{f"sub_success/{k}": v for k, v in self._milestones.items()}}
 
@@ -404,7 +404,8 @@ class ObsBenchEnv(gym.Env):
         if self.spec_.initialize(self.unwrapped_ms) or rebuilt:
             obs = self.unwrapped_ms.get_obs()
         self._milestones = {}
-        return self.to_env_observation(self.schema_frames(obs)), self._infos(info)
+        self._episode_start = self.spec_.episode_start(self.unwrapped_ms)
+        return self.to_env_observation(self.schema_frames(obs)), self._infos(info, stepped=False)
 
     def step_all(self, actions) -> tuple:
         """Step every env with its row of `actions` (num_envs, A): batched observation, reward, terminated,

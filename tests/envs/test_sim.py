@@ -644,6 +644,26 @@ def test_peg_insertion_reports_grasp_align_insert():
     assert first["grasp"] < first["align"] <= first["insert"], first
 
 
+@pytest.mark.parametrize("task", ["PickCube-v1", "StackCube-v1"])
+def test_pick_and_stack_report_reach_grasp_lift_place_in_order_and_none_at_the_next_reset(task):
+    """The expert's episode passes every milestone in its order; the next episode starts with none, although
+    ManiSkill reports the last episode's contacts (a grasp) until the simulation steps."""
+    env = ObsBenchEnv(task, cameras=(), image_size=32)
+    names = ("reach", "grasp", "lift", "place")
+    _, info = env.reset(seed=100_000)
+    expert, history = env.spec_.make_expert(env), []
+    while (action := expert.act()) is not None and not info["is_success"]:
+        _, _, _, _, info = env.step(action)
+        history.append(info)
+    _, after = env.reset(seed=100_001)
+    idle = [env.step(np.zeros(7, np.float32))[4] for _ in range(3)][-1]
+    env.close()
+    assert info["is_success"] and all(info[f"sub_success/{k}"] for k in names)
+    first = [next(i for i, h in enumerate(history) if h[f"sub_success/{k}"]) for k in names]
+    assert first == sorted(first), first
+    assert not any(after[f"sub_success/{k}"] for k in names) and not any(idle[f"sub_success/{k}"] for k in names)
+
+
 def test_perturbations_change_what_they_name_and_nothing_else():
     def first_frame(perturbation):
         e = ObsBenchEnv("PushCube-v1", image_size=SIZE, perturbation=perturbation)

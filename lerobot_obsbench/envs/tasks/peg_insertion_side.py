@@ -62,11 +62,11 @@ class PegInsertionSide(Task):
     # regions plus their bounding radii, from 5 mm above the table (dropping it) to above the tallest box (0.25 m)
     workspace = (-0.27, 0.27, -0.45, 0.62, 0.005, 0.3)
 
-    def milestone(self, name: str, ms_env, info: dict, success):
+    def milestone(self, name: str, ms_env, info: dict, success, start: dict):
         if name == "insert":
             return success
         if name == "align":  # peg head within the hole's cross-section (before or while inserting)
             head = info["peg_head_pos_at_hole"].reshape(-1, 3)
             radius = ms_env.box_hole_radii.reshape(-1)
             return (head[:, 1].abs() <= radius) & (head[:, 2].abs() <= radius) & (head[:, 0] >= -0.05)
-        return super().milestone(name, ms_env, info, success)
+        return super().milestone(name, ms_env, info, success, start)

@@ -7,6 +7,8 @@ which the cameras do not see); the goal position is given to the policy as obser
 xy in [-0.1, 0.1]^2 and its height 0..0.3 m above the cube's.
 
 **Success Conditions:** the cube within 2.5 cm of the goal while the robot is static.
+Sub-success: `reach` (the gripper's centre within 1.5 cm of the cube's), `grasp`, `lift` (held 2 cm above where it
+lay) and `place` (the cube within 2.5 cm of the goal, the robot moving or not).
 
 **Expert:** top-down grasp aligned with the cube's faces, carry to the goal, hold still.
 Its success rate: docs/simulation.md#tasks.
@@ -46,8 +48,15 @@ class PickCube(Task):
     privileged_actors = ("cube", "goal_site")
     objects = {"cube": bounding_radius(CUBE_HALF_SIZE, CUBE_HALF_SIZE, CUBE_HALF_SIZE)}
     expert = PickCubeExpert
+    grasped = "cube"
+    sub_success = ("reach", "grasp", "lift", "place")
     # closer to the spawn square than ManiSkill's camera, with a narrower field of view
     camera = ((0.35, 0.0, 0.45), (0.0, 0.0, 0.05), 0.9)
     # the cube's and the goal's square (±0.1 m) plus the cube's bounding radius, up to above the highest goal
     # (0.3 m over the cube), from 5 mm above the table (dropping it)
     workspace = (-0.15, 0.15, -0.15, 0.15, 0.005, 0.4)
+
+    def milestone(self, name: str, ms_env, info: dict, success, start: dict):
+        if name == "place":
+            return info["is_obj_placed"].reshape(-1).bool()
+        return super().milestone(name, ms_env, info, success, start)

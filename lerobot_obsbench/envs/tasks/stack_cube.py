@@ -5,7 +5,8 @@
 **Randomizations:** both cubes' xy positions on the table (without collision) and their rotations about z.
 
 **Success Conditions:** the red cube rests on the green one (within half a cube size), static and released.
-Sub-success: `grasp` (the red cube was held at some step).
+Sub-success: `reach` (the gripper's centre within 1.5 cm of the red cube's), `grasp` (the red cube was held at
+some step), `lift` (held 2 cm above where it lay) and `place` (resting on the green one, released or not).
 
 **Expert:** top-down grasp of the red cube, lift 10 cm, move above the green cube, lower, release, retreat.
 Its success rate: docs/simulation.md#tasks.
@@ -48,7 +49,7 @@ class StackCube(Task):
     privileged_actors = ("cubeA", "cubeB")
     camera_names = ("base_camera", "hand_camera")  # ManiSkill runs it with the wrist-camera Panda
     objects = dict.fromkeys(("cubeA", "cubeB"), bounding_radius(CUBE_HALF_SIZE, CUBE_HALF_SIZE, CUBE_HALF_SIZE))
-    sub_success = ("grasp",)
+    sub_success = ("reach", "grasp", "lift", "place")
     expert = StackCubeExpert
     expert_success_rate = 0.9  # as measured: docs/simulation.md#tasks
     # looking down at the table from the +x, +y side, so the hand (above x = 0) hides no cube at the start
@@ -56,3 +57,8 @@ class StackCube(Task):
     # both cubes' spawn region (x in [-0.2, 0.2], y in [-0.3, 0.3]) plus a cube's bounding radius, from 5 mm above
     # the table (dropping it) to 20 cm, above the height the expert lifts a cube to
     workspace = (-0.24, 0.24, -0.34, 0.34, 0.005, 0.2)
+
+    def milestone(self, name: str, ms_env, info: dict, success, start: dict):
+        if name == "place":
+            return info["is_cubeA_on_cubeB"].reshape(-1).bool()
+        return super().milestone(name, ms_env, info, success, start)
