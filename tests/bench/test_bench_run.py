@@ -198,8 +198,11 @@ def one_run_grid(path: Path, *changes: tuple[str, str]) -> Path:
 
 
 def test_killed_training_resumes_from_its_checkpoint_and_evaluation_keeps_it(tmp_path):
+    # rgb through the small keypoint encoder: the kills need a run that renders (an evaluation long enough to be
+    # killed in), not resnet18's 11M parameters, whose 80 steps were most of this test's time on a loaded machine
     grid = one_run_grid(
         tmp_path / "one.yaml",
+        ("obs_spaces: [rgb]", "obs_spaces: [rgb]\nencoders: {rgb: [spatial_softmax]}"),
         ("steps: 3", "steps: 80"),
         ("checkpoints: 1", "checkpoints: 8"),
         ("eval_episodes: 2", "eval_episodes: 4"),
