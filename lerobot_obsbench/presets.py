@@ -15,9 +15,14 @@
 A preset sets only fields that the run's space and encoder use (the policies refuse values they would ignore):
 overrides are keyed by policy type ("*": both) and by the kind of space — "all", "image" (rgb, depth, rgbd,
 pointmap), "depth" (image spaces with a depth or xyz channel), "point" — or an encoder's name.
+
+A value the user gives explicitly wins over the preset's: `preset_args(..., user_fields=...)` leaves out the fields
+the command already sets, so lerobot-train gets each field once, with the user's value.
 """
 
 from __future__ import annotations
+
+from collections.abc import Collection, Mapping
 
 from lerobot_obsbench.encoders import default_encoder
 from lerobot_obsbench.schema import (
@@ -152,9 +157,15 @@ def cli_value(value) -> str:
     return "[" + ",".join(str(v) for v in value) + "]" if isinstance(value, (list, tuple)) else str(value)
 
 
-def preset_args(preset: str, policy_type: str, obs_space: str, encoder: str | None = None) -> list[str]:
+def policy_flags(fields: Mapping[str, object]) -> list[str]:
     """`--policy.<field>=<value>` arguments for stock lerobot-train."""
-    return [
-        f"--policy.{name}={cli_value(value)}"
-        for name, value in preset_overrides(preset, policy_type, obs_space, encoder).items()
-    ]
+    return [f"--policy.{name}={cli_value(value)}" for name, value in fields.items()]
+
+
+def preset_args(
+    preset: str, policy_type: str, obs_space: str, encoder: str | None = None, user_fields: Collection[str] = ()
+) -> list[str]:
+    """The preset's `--policy.*` arguments for stock lerobot-train, but for `user_fields`: the command sets those to
+    the user's own values, which win, and lerobot-train gets each field once."""
+    fields = preset_overrides(preset, policy_type, obs_space, encoder)
+    return policy_flags({name: value for name, value in fields.items() if name not in user_fields})

@@ -35,7 +35,8 @@ from lerobot_obsbench.envs.base_task import TASKS, TaskError, check_cameras, tas
 from lerobot_obsbench.envs.maniskill import DEFAULT_CONTROL_MODE
 from lerobot_obsbench.envs.perturbations import parse_perturbation
 from lerobot_obsbench.errors import ObsBenchError
-from lerobot_obsbench.presets import PRESETS, cli_value, preset_args, preset_encoder
+from lerobot_obsbench.numeric import check_number, check_numbers
+from lerobot_obsbench.presets import PRESETS, policy_flags, preset_args, preset_encoder
 from lerobot_obsbench.rlbench.evaluate import MAX_STEPS as RLBENCH_MAX_STEPS
 from lerobot_obsbench.rlbench.evaluate import camera_view_for
 from lerobot_obsbench.rlbench.paper_tasks import CAMERAS as RLBENCH_CAMERAS
@@ -117,18 +118,18 @@ class RunSpec:
 
     def policy_args(self) -> list[str]:
         """The `--policy.<field>=<value>` arguments lerobot-train gets for this run (all but its type and device),
-        as lerobot-train's parser reads them."""
-        sizes = [
-            a
-            for a in preset_args(self.preset, self.policy, self.obs_space, self.encoder)
-            if not a.startswith("--policy.encoder=")
-        ]
+        as lerobot-train's parser reads them: each field once, the run's own values (its axes and overrides) over
+        the preset's."""
+        overrides = dict(self.policy_overrides)
+        sizes = preset_args(
+            self.preset, self.policy, self.obs_space, self.encoder, user_fields={*AXIS_FIELDS, *overrides}
+        )
         return [
             f"--policy.obs_space={self.obs_space}",
             *sizes,
             f"--policy.encoder={self.encoder}",
             f"--policy.cameras=[{','.join(self.cameras)}]",
-            *(f"--policy.{k}={cli_value(v)}" for k, v in self.policy_overrides),
+            *policy_flags(overrides),
             *([f"--policy.augment={self.augment}"] if self.augment else []),
             f"--policy.optimizer_lr={self.lr}",
         ]
@@ -376,6 +377,7 @@ def _resolve_encoders(spec, spaces: list[str], preset: str, name: str) -> dict[s
         resolved = {}
         for space in spaces:
             names = _as_list(spec.get(space, preset_encoder(preset, space)), f"encoders.{space}")
+            _check_listed_once(names, f"encoders.{space}", name)
             for name in names:
                 try:
                     check_encoder(name, space)
@@ -384,6 +386,7 @@ def _resolve_encoders(spec, spaces: list[str], preset: str, name: str) -> dict[s
             resolved[space] = names
         return resolved
     names = _as_list(spec, "encoders")
+    _check_listed_once(names, "encoders", name)
     _choose(names, available_encoders(), "encoders")
     resolved = {s: [n for n in names if s in encoder_info(n).spaces] for s in spaces}
     for space, chosen in resolved.items():
@@ -410,10 +413,25 @@ def _check_spaces_listed(mapping: dict, spaces: list[str], field_name: str, name
         raise GridError(f"{name}: {field_name} names spaces {extra} that are not in obs_spaces {spaces}")
 
 
+# The order of a normalised recipe's names by kind. The adapter applies each kind at a point of its own (colour
+# before normalisation, images after, points before the crop box), so only the order within a kind changes what
+# trains; images before colour is how the grids' recipes are written (random_shift+colour_jitter), so their ids stay.
+RECIPE_KIND_ORDER = ("image", "colour", "points")
+
+
+def normalised_recipe(recipe: str, space: str) -> str:
+    """A recipe as runs name it: its names stripped of spaces and ordered by kind (RECIPE_KIND_ORDER), in the order
+    written within a kind; "" for none. AugmentationError when a name does not exist or apply to `space`."""
+    from lerobot_obsbench.augmentations import augmentation_info, parse_augment
+
+    names = parse_augment(recipe.strip(), space)
+    return "+".join(sorted(names, key=lambda n: RECIPE_KIND_ORDER.index(augmentation_info(n).kind)))
+
+
 def _resolve_augmentations(spec, spaces: list[str], name: str) -> dict[str, list[str]]:
     """`augmentations`: a mapping space -> recipes (`--policy.augment` values, "" or null for none), each recipe
-    checked against its space."""
-    from lerobot_obsbench.augmentations import AugmentationError, parse_augment
+    checked against its space and normalised, so one recipe written two ways is refused as listed twice."""
+    from lerobot_obsbench.augmentations import AugmentationError
 
     if spec is None:
         return {}
@@ -421,68 +439,74 @@ def _resolve_augmentations(spec, spaces: list[str], name: str) -> dict[str, list
         raise GridError(f"{name}: augmentations maps spaces to recipes, e.g. {{rgb: ['', random_shift]}}; got {spec!r}")
     _check_spaces_listed(spec, spaces, "augmentations", name)
     resolved = {}
-    for space, recipes in spec.items():
-        recipes = ["" if r is None else r for r in _as_list(recipes, f"augmentations.{space}")]
-        for recipe in recipes:
+    for space, written in spec.items():
+        written = ["" if r is None else r for r in _as_list(written, f"augmentations.{space}")]
+        recipes = []
+        for recipe in written:
             if not isinstance(recipe, str):
                 raise GridError(f"{name}: augmentations.{space} lists recipes as text; got {recipe!r}")
             try:
-                parse_augment(recipe, space)
+                recipes.append(normalised_recipe(recipe, space))
             except AugmentationError as err:
                 raise GridError(f"{name}: augmentations.{space}: {err}") from None
-        if len(set(recipes)) != len(recipes):
-            raise GridError(f"{name}: augmentations.{space} lists a recipe twice: {recipes}")
+        _check_listed_once(recipes, f"augmentations.{space}", name, written)
         resolved[space] = recipes
     return resolved
 
 
-# Numeric grid fields: (whole number?, smallest allowed value, whether 0 itself is allowed); lists and per-policy
-# mappings are checked value by value. Booleans and strings are refused (YAML reads `steps: '5'` as a string).
+def _check_listed_once(values: list, field_name: str, name: str, written: list | None = None) -> None:
+    """An axis lists each of its values once (`written`: the values as the file spells them, where the grid
+    normalises them); a repeated value is one point of the grid given twice."""
+    repeated = sorted({json.dumps(v) for v in values if values.count(v) > 1})
+    if repeated:
+        spelling = f" (written {written})" if written is not None and written != values else ""
+        raise GridError(
+            f"{name}: {field_name} lists {', '.join(repeated)} more than once{spelling}; each value is one point of "
+            "the grid (listed twice, it would train the same runs twice): list it once"
+        )
+
+
+# Numeric grid fields and their bounds, as lerobot_obsbench.numeric.check_number (the project's one rule for
+# numbers) takes them; lists and per-policy mappings are checked value by value. Booleans and strings are refused
+# (YAML reads `steps: '5'` as a string).
 NUMERIC_FIELDS = {
-    "seeds": (True, 0, True),
-    "demos": (True, 1, True),
-    "learning_rates": (False, 0, False),
-    "steps": (False, 0, False),
-    "samples": (False, 0, False),
-    "demo_epochs": (False, 0, False),
-    "frame_epochs": (False, 0, False),
-    "batch_size": (True, 1, True),
-    "checkpoints": (True, 1, True),
-    "validation_episodes": (True, 0, True),
-    "image_size": (True, MIN_IMAGE_SIZE, True),
-    "eval_episodes": (True, 1, True),
-    "eval_batch_size": (True, 1, True),
-    "episode_length": (True, 1, True),
-    "held_out_demos": (True, 0, True),
+    "seeds": {"whole": True, "minimum": 0},
+    "demos": {"whole": True, "minimum": 1},
+    "learning_rates": {"above": 0},
+    "steps": {"above": 0},
+    "samples": {"above": 0},
+    "demo_epochs": {"above": 0},
+    "frame_epochs": {"above": 0},
+    "batch_size": {"whole": True, "minimum": 1},
+    "checkpoints": {"whole": True, "minimum": 1},
+    "validation_episodes": {"whole": True, "minimum": 0},
+    "image_size": {"whole": True, "minimum": MIN_IMAGE_SIZE},
+    "eval_episodes": {"whole": True, "minimum": 1},
+    "eval_batch_size": {"whole": True, "minimum": 1},
+    "episode_length": {"whole": True, "minimum": 1},
+    "held_out_demos": {"whole": True, "minimum": 0},
 }
 TEXT_LIST_FIELDS = ("cameras", "perturbations")
 
 
-def _check_number(value, label: str, whole: bool, minimum: float, inclusive: bool) -> None:
-    kind = "a whole number" if whole else "a finite number"
-    bound = f">= {minimum}" if inclusive else f"> {minimum}"
-    numeric = isinstance(value, (int, float)) and not isinstance(value, bool)
-    ok = numeric and math.isfinite(value) and (value >= minimum if inclusive else value > minimum)
-    if ok and whole and not isinstance(value, int):
-        ok = False
-    if not ok:
-        raise GridError(f"{label} must be {kind} {bound}; got {value!r}")
+def _checked_number(value, label: str, bounds: dict):
+    """`value` of a numeric grid field (a number, a list or a per-policy mapping of them) as check_number gives it
+    back: a whole number written 2.0 is 2, so it names the same runs as 2."""
+    if isinstance(value, dict):  # per policy
+        return {
+            policy: check_number(f"{label} of {policy}", v, error=GridError, **bounds) for policy, v in value.items()
+        }
+    if isinstance(value, (list, tuple)):
+        return list(check_numbers(label, value, error=GridError, **bounds))
+    return check_number(label, value, error=GridError, **bounds)
 
 
 def _check_values(values: dict, name: str) -> None:
-    """Type and range of every numeric and text field, before anything is built or run."""
-    for key, (whole, minimum, inclusive) in NUMERIC_FIELDS.items():
-        value = values.get(key)
-        if value is None:
-            continue
-        if isinstance(value, dict):  # per policy
-            items = [(f"{name}: {key} of {policy}", v) for policy, v in value.items()]
-        elif isinstance(value, (list, tuple)):
-            items = [(f"{name}: {key}[{i}]", v) for i, v in enumerate(value)]
-        else:
-            items = [(f"{name}: {key}", value)]
-        for label, item in items:
-            _check_number(item, label, whole, minimum, inclusive)
+    """Type and range of every numeric and text field, before anything is built or run; each number in `values` is
+    replaced by its checked value."""
+    for key, bounds in NUMERIC_FIELDS.items():
+        if values.get(key) is not None:
+            values[key] = _checked_number(values[key], f"{name}: {key}", bounds)
     for key in TEXT_LIST_FIELDS:
         value = values.get(key, [])
         if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
@@ -491,14 +515,8 @@ def _check_values(values: dict, name: str) -> None:
         if key in values and values[key] is not None and not isinstance(values[key], str):
             raise GridError(f"{name}: {key} is text; got {values[key]!r}")
     for key in ("tasks", "obs_spaces", "policies", *NUMERIC_FIELDS, *TEXT_LIST_FIELDS):
-        value = values.get(key)
-        if isinstance(value, list):
-            repeated = sorted({json.dumps(v) for v in value if value.count(v) > 1})
-            if repeated:
-                raise GridError(
-                    f"{name}: {key} lists {', '.join(repeated)} more than once; each value is one point of the "
-                    "grid (a repeated seed would train the same run twice): list it once"
-                )
+        if isinstance(values.get(key), list):
+            _check_listed_once(values[key], key, name)
     if not isinstance(values.get("policy_overrides", {}), dict):
         raise GridError(f"{name}: policy_overrides is a mapping of --policy.* fields to values")
     per_space = values.get("space_overrides", {})
@@ -607,6 +625,7 @@ def _check_grid(grid: Grid, rlbench: bool, name: str) -> None:
         )
     if not grid.variants or not all(isinstance(v, dict) for v in grid.variants):
         raise GridError(f"{name}: variants is a list of mappings of --policy.* fields, e.g. [{{}}, {{sampling: pre}}]")
+    _check_listed_once(grid.variants, "variants", name)
     for where, fields in (
         ("policy_overrides", grid.policy_overrides),
         *((f"space_overrides.{space}", v) for space, v in grid.space_overrides.items()),

@@ -28,7 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from lerobot_obsbench.policies.named import NAMED_POLICIES
-    from lerobot_obsbench.presets import preset_args
+    from lerobot_obsbench.presets import policy_flags, preset_overrides
 
     policy, obs_space, encoder = args.policy, args.obs_space or "pointcloud", args.encoder
     if args.policy in NAMED_POLICIES:  # act_pcd = obs_act + pointcloud + pointnet
@@ -36,7 +36,10 @@ def run(args: argparse.Namespace) -> int:
         if args.obs_space not in (None, obs_space):
             raise UsageError(f"--policy {args.policy} fixes the observation space to {obs_space}; drop --obs-space")
         encoder = encoder or named_encoder
-    print(" ".join(preset_args(args.preset, policy, obs_space, encoder)))
+    fields = preset_overrides(args.preset, policy, obs_space, encoder)
+    if args.encoder and "encoder" in fields:  # the user's wins: the preset's, pasted after it, would replace it
+        fields["encoder"] = args.encoder
+    print(" ".join(policy_flags(fields)))
     return 0
 
 

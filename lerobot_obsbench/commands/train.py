@@ -36,7 +36,8 @@ def run(args: argparse.Namespace) -> int:
 def lerobot_train_args(items: list[str]) -> list[str]:
     """The brief's spelling -> stock lerobot-train arguments: `policy=act_pcd env=obsbench_pickcube
     [dataset=DIR] [preset=cpu] [key.sub=value ...] [--any.lerobot=flag ...]`. The dataset defaults to
-    data/<task> (what `obsbench demos` is told to write there); a missing one is refused naming that command."""
+    data/<task> (what `obsbench demos` is told to write there); a missing one is refused naming that command. The
+    preset's fields come last, but for the `--policy.*` fields the user sets: each once, with the user's value."""
     from lerobot.envs.configs import EnvConfig
 
     from lerobot_obsbench.envs.configuration import env_type_name
@@ -70,10 +71,17 @@ def lerobot_train_args(items: list[str]) -> list[str]:
             )
         flags += [f"--dataset.root={root}", f"--dataset.repo_id=local/{Path(root).name}"]
     preset = values.pop("preset", None)
+    command = [f"--policy.type={policy}", f"--env.type={env}", *(f"--{k}={v}" for k, v in values.items()), *flags]
     if preset is not None:
-        base, space, _ = NAMED_POLICIES.get(policy, (policy, values.get("policy.obs_space", "pointcloud"), None))
-        flags += preset_args(preset, base, space, values.get("policy.encoder"))
-    return [f"--policy.type={policy}", f"--env.type={env}", *(f"--{k}={v}" for k, v in values.items()), *flags]
+        user = _policy_values(command)  # given as policy.field=value or --policy.field=value
+        base, space, _ = NAMED_POLICIES.get(policy, (policy, user.get("obs_space", "pointcloud"), None))
+        command += preset_args(preset, base, space, user.get("encoder"), user_fields=user)
+    return command
+
+
+def _policy_values(command: list[str]) -> dict[str, str]:
+    """The `--policy.<field>=<value>` arguments of a command line, as field -> value."""
+    return dict(a.removeprefix("--policy.").split("=", 1) for a in command if a.startswith("--policy.") and "=" in a)
 
 
 def main(argv: list[str] | None = None) -> int:

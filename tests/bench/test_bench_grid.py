@@ -9,12 +9,24 @@ import numpy as np
 import pytest
 import yaml
 
-from lerobot_obsbench.bench.grid import EvalSpec, GridError, RunSpec, load_grid, parse_grid, preset_grids
+from lerobot_obsbench.bench.grid import (
+    AXIS_FIELDS,
+    NUMERIC_FIELDS,
+    EvalSpec,
+    GridError,
+    RunSpec,
+    load_grid,
+    parse_grid,
+    preset_grids,
+)
 from lerobot_obsbench.bench.results import append_result
 from lerobot_obsbench.bench.units import demo_dir, train_command
 from lerobot_obsbench.cli import main
 from lerobot_obsbench.envs.base_task import task_spec
 from lerobot_obsbench.envs.perturbations import orbit_eye, parse_perturbation
+from lerobot_obsbench.numeric import check_number
+from lerobot_obsbench.presets import preset_overrides
+from tests.commands.test_train_cli import policy_fields, preset_cases
 from tests.support.paths import REPO_ROOT
 
 BASE = {"tasks": ["PushCube-v1"], "obs_spaces": ["rgb", "pointcloud"], "steps": 10, "preset": "tiny"}
@@ -90,6 +102,96 @@ def test_augmentations_are_an_axis_per_space_whose_unaugmented_runs_keep_their_i
     assert "--policy.augment=random_shift+colour_jitter" in command
 
 
+@pytest.mark.parametrize(
+    "space, recipes",
+    [
+        ("rgb", ["random_shift", " random_shift"]),
+        ("rgb", ["random_shift+colour_jitter", "colour_jitter + random_shift"]),
+        ("rgb", ["", "  "]),
+        ("rgb+pointcloud", ["random_shift+point_jitter", "point_jitter+random_shift"]),
+    ],
+)
+def test_one_recipe_written_two_ways_is_refused_like_a_seed_given_twice(space, recipes):
+    """`[random_shift, " random_shift"]` used to make two methods that train the same thing."""
+    grid = {**BASE, "obs_spaces": [space], "augmentations": {space: recipes}}
+    with pytest.raises(GridError, match=rf"augmentations.{re.escape(space)} lists .* more than once"):
+        parse_grid(grid)
+
+
+def test_recipes_are_normalised_before_runs_are_made_keeping_the_order_that_trains():
+    written = parse_grid({**BASE, "augmentations": {"rgb": [" colour_jitter + random_shift "]}}).expand()[0]
+    canonical = parse_grid({**BASE, "augmentations": {"rgb": ["random_shift+colour_jitter"]}}).expand()[0]
+    assert written.augment == "random_shift+colour_jitter" and written.run_id == canonical.run_id
+    # within a kind the order is what trains (the transforms compose in it): two recipes, as written
+    point_orders = ["point_jitter+point_dropout", "point_dropout+point_jitter"]
+    runs = parse_grid({**BASE, "obs_spaces": ["pointcloud"], "augmentations": {"pointcloud": point_orders}}).expand()
+    assert [r.augment for r in runs] == point_orders
+
+
+def _adapter_output(synthetic_module, space: str, recipe: str) -> list:
+    import torch
+
+    from lerobot_obsbench.schema import PointCloud
+    from lerobot_obsbench.spaces import AdapterConfig, ObservationAdapter
+    from tests.support.helpers import CAM, frame_batch
+
+    config = AdapterConfig(space, [CAM], workspace=(-0.5, 0.5, -0.5, 0.5, 0.005, 0.5), augment=recipe)
+    torch.manual_seed(0)
+    out = ObservationAdapter(config)(frame_batch(synthetic_module, batch_size=2, size=32))
+    parts = out if isinstance(out, tuple) else (out,)
+    return [t for p in parts for t in ((p.xyz, p.features, p.mask) if isinstance(p, PointCloud) else (p,))]
+
+
+@pytest.mark.parametrize(
+    "space, recipe, reordered, same",
+    [
+        ("rgb", "random_shift+colour_jitter", "colour_jitter+random_shift", True),
+        ("rgb+pointcloud", "random_shift+point_jitter", "point_jitter+random_shift", True),
+        ("pointcloud", "point_translate+point_rotate", "point_rotate+point_translate", False),
+        ("rgb", "random_shift+random_crop", "random_crop+random_shift", False),
+    ],
+)
+def test_the_order_of_a_recipes_names_matters_within_a_kind_only(synthetic_module, space, recipe, reordered, same):
+    """What the grid's normalisation rests on: the adapter applies each kind at its own point, in name order."""
+    import torch
+
+    first, second = (_adapter_output(synthetic_module, space, names) for names in (recipe, reordered))
+    assert all(torch.equal(a, b) for a, b in zip(first, second, strict=True)) == same
+
+
+def test_a_value_the_grid_sets_over_its_preset_is_what_trains_and_appears_once():
+    """A grid's own value of a preset field (policy_overrides, its encoder and learning-rate axes) used to follow the
+    preset's on lerobot-train's command line: each field twice, the later one winning."""
+    for preset, policy, space, encoder in preset_cases():
+        fields = preset_overrides(preset, policy, space, encoder)
+        overrides = {name: f"user_{name}" for name in fields if name not in AXIS_FIELDS}
+        run = RunSpec(
+            task="PushCube-v1",
+            obs_space=space,
+            encoder=encoder,
+            policy=policy,
+            seed=0,
+            lr=0.125,
+            demos=1,
+            preset=preset,
+            batch_size=1,
+            budget_unit="steps",
+            budget=1,
+            image_size=64,
+            cameras=("base_camera",),
+            control_mode="pd_ee_delta_pose",
+            policy_overrides=tuple(sorted(overrides.items())),
+        )
+        given = policy_fields(run.policy_args())
+        assert all(len(values) == 1 for values in given.values()), (preset, policy, space, encoder, given)
+        assert {name: given[name][0] for name in overrides} == overrides
+        assert given["encoder"] == [encoder] and given["optimizer_lr"] == ["0.125"]
+    grid = {**BASE, "obs_spaces": ["pointcloud"], "encoders": ["dp3"], "preset": "real-one-arm"}
+    (run,) = parse_grid({**grid, "learning_rates": [1e-3], "policy_overrides": {"workspace_jitter": 0.0}}).expand()
+    given = policy_fields(train_command(run, "ds", "out", steps=10, device="cpu", save_every=5))
+    assert given["optimizer_lr"] == ["0.001"] and given["workspace_jitter"] == ["0.0"]  # the preset's: 5e-5, 0.01
+
+
 def test_space_overrides_set_fields_for_one_space_only():
     plain = {r.obs_space: r for r in parse_grid({**BASE, "obs_spaces": ["rgb", "pointcloud"]}).expand()}
     grid = {
@@ -139,7 +241,11 @@ def test_run_id_is_a_hash_of_the_resolved_config():
         ({"augmentations": {"rgb": ["point_jitter"]}}, ["augmentations.rgb", "does not apply", "random_shift"]),
         ({"augmentations": {"rgb": ["random_shfit"]}}, ["unknown augmentation 'random_shfit'", "colour_jitter"]),
         ({"augmentations": {"depth": ["random_shift"]}}, ["augmentations names spaces ['depth']"]),
-        ({"augmentations": {"rgb": ["", None]}}, ["lists a recipe twice"]),
+        ({"augmentations": {"rgb": ["", None]}}, ['augmentations.rgb lists "" more than once']),
+        # each used to train the same runs twice under one id
+        ({"encoders": {"rgb": ["resnet18", "resnet18"]}}, ['encoders.rgb lists "resnet18" more than once']),
+        ({"encoders": ["resnet18", "pointnet", "resnet18"]}, ['encoders lists "resnet18" more than once']),
+        ({"variants": [{}, {}]}, ["variants lists {} more than once"]),
         ({"augmentations": ["random_shift"]}, ["maps spaces to recipes"]),
         ({"policy_overrides": {"augment": "random_shift"}}, ["sets --policy.augment", "augmentations"]),
         ({"space_overrides": {"depth": {"encoder_norm": "batch"}}}, ["space_overrides names spaces ['depth']"]),
@@ -186,6 +292,29 @@ def test_bad_grid_values_are_refused_by_the_dry_run(tmp_path, capsys, field, tex
     assert main(["run", str(grid), "--out", str(tmp_path / "out"), "--dry-run"]) == 2
     assert f"obsbench run: error: bad: {message}" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_grid_numbers_are_refused_by_the_projects_one_rule_in_its_words():
+    """Every grid number goes through lerobot_obsbench.numeric: what check_number refuses, the grid refuses with
+    its words (NaN, infinities, out of range, a bool, text)."""
+    for field, bounds in NUMERIC_FIELDS.items():
+        for value in (float("nan"), float("inf"), -1, 0, 0.5, True, "3"):
+            try:
+                check_number(field, value, **bounds)
+            except ValueError as refusal:
+                with pytest.raises(GridError) as err:
+                    parse_grid({**BASE, field: [value] if field in ("seeds", "demos", "learning_rates") else value})
+                assert str(err.value).replace("[0]", "") == f"grid: {refusal}"
+
+
+def test_a_whole_number_written_with_a_decimal_point_is_that_number():
+    """`seeds: [1000.0]` used to be refused as not whole while numeric.check_number, the one rule, takes it; and
+    1000 and 1000.0 are one seed listed twice, not two runs of the same training."""
+    written = parse_grid({**BASE, "seeds": [1000.0], "demos": [50.0], "batch_size": 8.0}).expand()
+    plain = parse_grid({**BASE, "seeds": [1000], "demos": [50], "batch_size": 8}).expand()
+    assert [r.run_id for r in written] == [r.run_id for r in plain]
+    with pytest.raises(GridError, match="seeds lists 1000 more than once"):
+        parse_grid({**BASE, "seeds": [1000, 1000.0]})
 
 
 def test_bad_grid_fails_before_anything_runs(tmp_path, capsys):

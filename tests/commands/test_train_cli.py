@@ -11,10 +11,37 @@ from pathlib import Path
 
 import pytest
 
-from lerobot_obsbench.presets import preset_args
+from lerobot_obsbench.cli import main
+from lerobot_obsbench.commands.train import lerobot_train_args
+from lerobot_obsbench.presets import PRESETS, preset_args, preset_encoder, preset_overrides
+from lerobot_obsbench.schema import FUSED_SPACES, OBS_SPACES, POLICY_TYPES
 
 BIN = Path(sys.executable).parent
 SPACES = ["rgb", "depth", "rgbd", "pointmap", "pointcloud"]
+
+
+def policy_fields(command: list[str]) -> dict[str, list[str]]:
+    """Each `--policy.<field>` of a lerobot-train command line -> every value the line gives it, in order."""
+    fields: dict[str, list[str]] = {}
+    for arg in command:
+        if arg.startswith("--policy."):
+            name, value = arg.removeprefix("--policy.").split("=", 1)
+            fields.setdefault(name, []).append(value)
+    return fields
+
+
+def preset_cases() -> list[tuple[str, str, str, str]]:
+    """Every (preset, policy type, space, encoder) a preset has fields for: each encoder that accepts the space (a
+    fused space: the preset's pair), so the fields a preset keys by encoder are among them."""
+    from lerobot_obsbench.encoders import available_encoders
+
+    return [
+        (preset, policy, space, encoder)
+        for preset in PRESETS
+        for policy in POLICY_TYPES
+        for space in OBS_SPACES
+        for encoder in ([preset_encoder(preset, space)] if space in FUSED_SPACES else available_encoders(space))
+    ]
 
 
 def lerobot_train(
@@ -57,6 +84,58 @@ def test_lerobot_train_every_pair(tiny_dataset, tmp_path, policy_type, obs_space
     assert config["type"] == policy_type and config["obs_space"] == obs_space
     assert config["cameras"] == ["base_camera"]
     assert "step:2" in proc.stdout + proc.stderr
+
+
+@pytest.mark.parametrize("spelling", ["policy.{}={}", "--policy.{}={}"])
+def test_obsbench_train_gives_lerobot_train_each_preset_field_once_with_the_users_value(spelling):
+    """`obsbench train ... preset=tiny policy.encoder=spatial_softmax` used to train resnet18: the preset's fields
+    came after the user's on the command line, so the preset won."""
+    for preset, policy, space, encoder in preset_cases():
+        user = {
+            name: encoder if name == "encoder" else f"user_{name}"
+            for name in preset_overrides(preset, policy, space, encoder)
+        }
+        user.update(obs_space=space, encoder=encoder)
+        items = [spelling.format(name, value) for name, value in user.items()]
+        command = lerobot_train_args(
+            [f"policy={policy}", "env=obsbench_pushcube", "--dataset.root=data/x", f"preset={preset}", *items]
+        )
+        assert policy_fields(command) == {"type": [policy], **{name: [value] for name, value in user.items()}}, (
+            preset,
+            policy,
+            space,
+            encoder,
+        )
+
+
+def test_obsbench_train_dry_run_shows_the_users_encoder_and_token_count(capsys):
+    common = ["train", "--dry-run", "env=obsbench_pushcube", "--dataset.root=data/x", "preset=tiny"]
+    assert main([*common, "policy=obs_act", "policy.obs_space=rgb", "policy.encoder=spatial_softmax"]) == 0
+    assert policy_fields(capsys.readouterr().out.split())["encoder"] == ["spatial_softmax"]
+    assert main([*common, "policy=act_pcd", "--policy.num_tokens=64"]) == 0
+    assert policy_fields(capsys.readouterr().out.split())["num_tokens"] == ["64"]
+    # a named type's encoder is a default the preset may change (cpu: ResNet-18); the user's still wins
+    assert main([*common, "policy=act_rgb", "policy.encoder=spatial_softmax"]) == 0
+    assert policy_fields(capsys.readouterr().out.split())["encoder"] == ["spatial_softmax"]
+
+
+def test_obsbench_preset_prints_the_users_encoder_where_the_preset_sets_one(capsys):
+    """Pasted after `--policy.encoder=spatial_softmax`, the printed preset used to set ResNet-18 back."""
+    assert main(["preset", "--preset", "tiny", "--obs-space", "rgb", "--encoder", "spatial_softmax"]) == 0
+    assert policy_fields(capsys.readouterr().out.split())["encoder"] == ["spatial_softmax"]
+
+
+@pytest.mark.slow
+def test_obsbench_train_trains_the_users_encoder_over_the_presets(tiny_dataset, tmp_path, monkeypatch):
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+    monkeypatch.setenv("HF_DATASETS_OFFLINE", "1")
+    out = tmp_path / "run"
+    argv = ["train", "policy=obs_act", "env=obsbench_pushcube", f"dataset={tiny_dataset}", "preset=tiny"]
+    argv += ["policy.obs_space=rgb", "policy.encoder=spatial_softmax", "policy.device=cpu", "--batch_size=2"]
+    argv += ["--steps=2", "--save_freq=2", "--num_workers=0", "--wandb.enable=false", f"--output_dir={out}"]
+    assert main(argv) == 0
+    config = json.loads((out / "checkpoints" / "last" / "pretrained_model" / "config.json").read_text())
+    assert config["encoder"] == "spatial_softmax" and config["dim_model"] == 32  # the user's encoder, tiny's sizes
 
 
 @pytest.mark.slow
