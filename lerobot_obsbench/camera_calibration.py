@@ -89,6 +89,8 @@ class CameraCalibration:
     @classmethod
     def from_dict(cls, values: dict, where: str = "camera calibration") -> CameraCalibration:
         names = set(cls.__dataclass_fields__)
+        if not isinstance(values, dict):
+            raise SchemaError(f"{where}: expected an object of fields ({', '.join(sorted(names))}), got {values!r}.")
         unknown, missing = set(values) - names, {n for n in names if n not in values} - _OPTIONAL
         if unknown or missing:
             raise SchemaError(
@@ -118,32 +120,72 @@ def calibration_path(root: str | Path) -> Path:
     return Path(root) / CALIBRATION_FILE
 
 
+class CalibrationFileError(SchemaError):
+    """A dataset's calibration file that cannot be read as a whole: not JSON, another layout or format version."""
+
+    def __init__(self, path: Path, problem: str):
+        self.path, self.problem = path, problem
+        super().__init__(
+            f"{path}: {problem}; replace it (what it holds is lost): obsbench attach-calibration --root "
+            f"{path.parent.parent} --camera CAM (--from-recording FILE.bag | --serial SERIAL | --from-json FILE) "
+            "--cam2world FILE --overwrite"
+        )
+
+
+def stored_calibration(root: str | Path) -> dict[str, object]:
+    """The calibration file's entries as stored, camera -> fields, each unchecked ({} when there is no file);
+    `CalibrationFileError` when the file as a whole cannot be read."""
+    path = calibration_path(root)
+    if not path.exists():
+        return {}
+    if not path.is_file():  # --overwrite cannot replace a folder: it is moved by hand
+        raise SchemaError(f"{path} is not a file; move it out of the way, the calibration is written there")
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise CalibrationFileError(path, f"cannot be read as JSON ({err})") from None
+    layout = f'{{"version": {FORMAT_VERSION}, "cameras": {{name: calibration}}}}'
+    if not isinstance(data, dict) or not isinstance(data.get("cameras"), dict):
+        raise CalibrationFileError(path, f"expected {layout}, found {json.dumps(data)[:60]}")
+    if data.get("version") != FORMAT_VERSION:
+        raise CalibrationFileError(
+            path,
+            f"format version {data.get('version')!r}, but this plugin reads format version {FORMAT_VERSION} (if a "
+            "newer plugin wrote it, upgrade the plugin instead)",
+        )
+    return data["cameras"]
+
+
 def read_calibration(root: str | Path) -> dict[str, CameraCalibration]:
     """The cameras calibrated in the dataset at `root` ({} when the file does not exist)."""
     path = calibration_path(root)
-    if not path.is_file():
-        return {}
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as err:
-        raise SchemaError(
-            f"{path}: not valid JSON ({err}); write it again with `obsbench attach-calibration`."
-        ) from None
-    if not isinstance(data, dict) or not isinstance(data.get("cameras"), dict):
-        raise SchemaError(f"{path}: expected {{'version': 1, 'cameras': {{name: calibration}}}}.")
-    return {
-        cam: CameraCalibration.from_dict(values, where=f"{path} camera {cam!r}")
-        for cam, values in data["cameras"].items()
-    }
+    cameras = {}
+    for cam, values in stored_calibration(root).items():
+        try:
+            cameras[cam] = CameraCalibration.from_dict(values, where=f"{path} camera {cam!r}")
+        except SchemaError as err:
+            raise SchemaError(
+                f"{str(err).rstrip('.')}; attach it again: obsbench attach-calibration --root {root} --camera {cam} "
+                "(--from-recording FILE.bag | --serial SERIAL | --from-json FILE) --cam2world FILE"
+            ) from None
+    return cameras
 
 
-def write_calibration(root: str | Path, cameras: dict[str, CameraCalibration]) -> Path:
-    """Add or replace `cameras` in the dataset's calibration file (others are kept); written atomically."""
+def write_calibration(
+    root: str | Path, cameras: dict[str, CameraCalibration], replace_unreadable: bool = False
+) -> Path:
+    """Add or replace `cameras` in the dataset's calibration file, written atomically; the other cameras' entries
+    are kept as stored. A file that cannot be read is replaced only with `replace_unreadable`."""
     path = calibration_path(root)
-    merged = {cam: calib.to_dict() for cam, calib in read_calibration(root).items()}
-    merged.update({cam: calib.to_dict() for cam, calib in cameras.items()})
+    try:
+        entries = dict(stored_calibration(root))
+    except CalibrationFileError:
+        if not replace_unreadable:
+            raise
+        entries = {}
+    entries.update({cam: calib.to_dict() for cam, calib in cameras.items()})
     tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps({"version": FORMAT_VERSION, "cameras": merged}, indent=1) + "\n")
+    tmp.write_text(json.dumps({"version": FORMAT_VERSION, "cameras": entries}, indent=1) + "\n")
     os.replace(tmp, path)
     return path
 

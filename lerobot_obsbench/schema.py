@@ -308,6 +308,7 @@ def validate_features(
     needed = SPACE_SENSORS[obs_space]
     if not needed:
         return []
+    recorded = sorted(k for k in features if k.startswith(OBS_PREFIX))  # LeRobot's depth maps included
     uncalibrated = stock_depth_cameras(features)
     features = with_calibrated_depth(features, calibration or {})
     uncalibrated = [c for c in uncalibrated if depth_key(c) not in features] if DEPTH_PREFIX in needed else []
@@ -316,12 +317,19 @@ def validate_features(
         if not cameras and uncalibrated:
             raise _uncalibrated(obs_space, uncalibrated[0])
         if not cameras:
-            present = sorted(k for k in features if k.startswith(OBS_PREFIX))
+            # the policy's read declaration (lerobot-train) passes the features with an uncalibrated LeRobot depth
+            # map already left out, so the way to calibrate one is named wherever depth is needed
+            calibrate = (
+                f"; for LeRobot's own depth recording ({stock_depth_key('<cam>')}) "
+                + ATTACH_CALIBRATION_HINT.format(cam="CAM")
+                if DEPTH_PREFIX in needed
+                else ""
+            )
             raise SchemaError(
                 f"obs_space={obs_space!r} needs, for at least one camera <cam>, the keys "
-                f"{', '.join(p + '<cam>' for p in needed)}; the dataset has {present}. Record depth, intrinsics "
-                "and cam2world with the frames (see the schema in lerobot_obsbench/schema.py), or pick "
-                "an observation space the dataset supports."
+                f"{', '.join(p + '<cam>' for p in needed)}; the dataset has {recorded}. Record them with the "
+                f"frames (see the schema in lerobot_obsbench/schema.py){calibrate}; or pick an observation space the "
+                "dataset supports."
             )
     for cam in cameras:
         if cam in uncalibrated:

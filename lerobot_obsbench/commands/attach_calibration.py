@@ -34,13 +34,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="the colour camera's pose in the world frame (4x4, metres): obsbench calibrate-cameras' saved file or a "
         "bare 4x4 JSON matrix",
     )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace meta/obsbench_cameras.json if it cannot be read (not JSON, another layout or format version; "
+        "what it holds is lost); a readable file keeps its other cameras either way",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     from lerobot_obsbench.datasets.calibration import attach_calibration
 
     path, calibration = attach_calibration(
-        args.root, args.camera, args.from_json, args.from_recording, args.serial, args.cam2world
+        args.root, args.camera, args.from_json, args.from_recording, args.serial, args.cam2world, args.overwrite
     )
     print(
         f"camera {args.camera}: colour {calibration.color_size[1]}x{calibration.color_size[0]}, depth "

@@ -65,13 +65,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "ManiSkill's GPU simulation in this process (results differ from the CPU simulation's); auto: physx_cuda "
         "for N > 1 on a cuda device, else physx_cpu",
     )
-    p.add_argument("--videos", type=Path, default=None, help="write one mp4 per episode here")
+    p.add_argument(
+        "--videos",
+        type=Path,
+        default=None,
+        help="write one mp4 per episode here (TASK_seedN.mp4); files of those names are replaced only when an "
+        "evaluation of the same checkpoint, task and perturbation wrote them, or with --overwrite",
+    )
     p.add_argument("--out", type=Path, default=None, help="write the JSON result here (a file, checked first)")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    p.add_argument(
+        "--overwrite", action="store_true", help="replace an existing --out file and --videos files of the same names"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
-    from lerobot_obsbench.envs.evaluate import evaluate, write_result
+    from lerobot_obsbench.envs.base_task import eval_seeds
+    from lerobot_obsbench.envs.evaluate import evaluate, video_name, videos_made_by, write_result
     from lerobot_obsbench.envs.perturbations import parse_perturbation
     from lerobot_obsbench.envs.vector import default_batch_size
 
@@ -79,7 +88,14 @@ def run(args: argparse.Namespace) -> int:
     if args.out is not None:
         check_output_file(args.out, "--out", args.overwrite)  # before the episodes it would hold
     if args.videos is not None:
-        check_output_folder(args.videos, "--videos", inputs=[Path(args.policy_path)])
+        check_output_folder(
+            args.videos,
+            "--videos",
+            inputs=[Path(args.policy_path)],
+            files=[video_name(args.task, seed) for seed in eval_seeds(args.episodes)],
+            made_by=videos_made_by(args.policy_path, args.task, args.perturbation),
+            overwrite=args.overwrite,
+        )
 
     result = evaluate(
         args.policy_path,

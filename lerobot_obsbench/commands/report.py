@@ -9,11 +9,13 @@ from pathlib import Path
 
 from lerobot_obsbench.commands import common
 from lerobot_obsbench.errors import UsageError
-from lerobot_obsbench.outputs import check_output_file, check_output_folder, write_text_atomic
+from lerobot_obsbench.outputs import check_output_file, check_output_folder, record_outputs, write_text_atomic
 
 NAME = "report"
 HELP = "paper-style tables (Markdown + HTML) and plots from results.jsonl and/or a published table"
 EXAMPLE = """obsbench report outputs/bench/quick/results.jsonl --json outputs/bench/quick/summary.json"""
+# What `write_report` writes in --out whatever the results hold (the figures' names depend on them).
+REPORT_FILES = ("report.md", "report.html")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -33,8 +35,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="which checkpoint's test "
         "evaluations the tables show: best on the validation seeds (where a run has one) or last",
     )
-    p.add_argument("--out", type=Path, default=None, help="report directory (default: next to the results)")
-    p.add_argument("--json", type=Path, default=None, help="write mean_sr and mean_rank per method here")
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="report directory (default: next to the results); its report.md, report.html and figures are replaced "
+        "only when a report of the same results and table wrote them, or with --overwrite",
+    )
+    p.add_argument(
+        "--json",
+        type=Path,
+        default=None,
+        help="write mean_sr and mean_rank per method here (an existing file: as --out's files)",
+    )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace --out's report files and the --json file even when another report or no report wrote them",
+    )
     p.add_argument("--title", default="OBSBench report")
     p.add_argument(
         "--reference",
@@ -64,13 +82,19 @@ def run(args: argparse.Namespace) -> int:
         raise ReportError(f"results file {args.results} not found (`obsbench run` writes OUT/results.jsonl)")
     out = args.out or (args.results.parent / "report" if args.results else Path("report"))
     inputs = [path for path in (args.results, args.table) if path is not None and Path(path).exists()]
-    check_output_folder(out, "--out", inputs)
-    if args.json:  # a summary is regenerated, like the report; never over the results it summarises
-        check_output_file(args.json, "--json", overwrite=True, inputs=inputs)
+    table = resolve_table(args.table) if args.table else None
+    # a report of the same results and table regenerates its own files in place; anything else needs --overwrite
+    made_by = {
+        "writer": "obsbench report",
+        "results": str(args.results.resolve()) if args.results else None,
+        "table": str(Path(table).resolve()) if table else None,
+    }
+    check_output_folder(out, "--out", inputs, files=REPORT_FILES, made_by=made_by, overwrite=args.overwrite)
+    if args.json:  # never over the results it summarises
+        check_output_file(args.json, "--json", args.overwrite, inputs, made_by)
     records = read_results(args.results) if args.results else []
     if args.results and not records:
         print(f"warning: no readable records in {args.results}", file=sys.stderr)
-    table = resolve_table(args.table) if args.table else None
     published = read_published(table) if table else None
     report = build_report(
         records,
@@ -79,7 +103,10 @@ def run(args: argparse.Namespace) -> int:
         checkpoint=args.checkpoint,
         reference=args.reference,
     )
+    # the figures' names depend on the results: checked once the report is built, before anything is written
+    check_output_folder(out, "--out", inputs, files=report["figures"], made_by=made_by, overwrite=args.overwrite)
     paths = write_report(report, out, title=args.title)
+    record_outputs([*paths.values(), *(out / name for name in report["figures"])], made_by)
     heading, (header, rows) = report["sections"][0]
     print(f"{heading}\n{markdown_table(header, rows)}")
     for warning in report["warnings"]:
@@ -89,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"{source:9s} {method:45s} Mean S.R. {s['mean_sr']:.2f}  Mean Rank {s['mean_rank']:.2f}")
     if args.json:
         write_text_atomic(args.json, json.dumps(summary_json(report), indent=2) + "\n")
+        record_outputs([args.json], made_by)
     print(f"report: {paths['markdown']}, {paths['html']}" + (f"; summary: {args.json}" if args.json else ""))
     return 0
 

@@ -16,7 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from lerobot_obsbench.camera_calibration import CameraCalibration, write_calibration
+from lerobot_obsbench.camera_calibration import (
+    CalibrationFileError,
+    CameraCalibration,
+    stored_calibration,
+    write_calibration,
+)
 from lerobot_obsbench.errors import MissingFileError
 from lerobot_obsbench.schema import (
     SchemaError,
@@ -116,8 +121,10 @@ def attach_calibration(
     from_recording: str | Path | None = None,
     serial: str | None = None,
     cam2world: str | Path | None = None,
+    overwrite: bool = False,
 ) -> tuple[Path, CameraCalibration]:
-    """Write camera `camera`'s calibration into the dataset at `root`; returns the file and what was written."""
+    """Write camera `camera`'s calibration into the dataset at `root`; returns the file and what was written. The
+    file's other cameras are kept; a file that cannot be read is replaced only with `overwrite`."""
     root = Path(root)
     features = _features(root)
     depth_feature = features.get(stock_depth_key(camera))
@@ -128,6 +135,13 @@ def attach_calibration(
             f"(cameras recorded with depth: {', '.join(recorded) or 'none'}); record with the RealSense's "
             "use_depth: true."
         )
+    try:
+        stored_calibration(root)  # before a camera or recording is opened
+    except CalibrationFileError as err:
+        if not overwrite:
+            raise SchemaError(
+                f"{err.path}: {err.problem}; add --overwrite to replace the file (what it holds is lost), or delete it"
+            ) from None
     if sum(source is not None for source in (from_json, from_recording, serial)) != 1:
         raise SchemaError("give exactly one of --from-json FILE, --from-recording FILE.bag, --serial SERIAL")
     sizes = [_size(features[image_key(camera)]) if image_key(camera) in features else _size(depth_feature)]
@@ -158,4 +172,4 @@ def attach_calibration(
                 f"calibration of camera {camera!r}: {name} {getattr(calibration, name)} but the dataset records "
                 f"{recorded}; calibrate the camera at the resolution it recorded at."
             )
-    return write_calibration(root, {camera: calibration}), calibration
+    return write_calibration(root, {camera: calibration}, replace_unreadable=overwrite), calibration

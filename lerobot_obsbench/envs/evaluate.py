@@ -46,7 +46,7 @@ from lerobot_obsbench.envs.maniskill import (
 )
 from lerobot_obsbench.envs.vector import make_envs
 from lerobot_obsbench.errors import ConfigError, UsageError
-from lerobot_obsbench.outputs import write_json_atomic, write_text_atomic
+from lerobot_obsbench.outputs import record_outputs, write_json_atomic, write_text_atomic
 from lerobot_obsbench.policies.loading import load_policy
 from lerobot_obsbench.schema import check_compatibility
 from lerobot_obsbench.stats import per_seed, success_summary
@@ -168,7 +168,7 @@ def evaluate(
                 if progress_file is not None:
                     write_json_atomic(progress_file, {"done": len(records), "episodes": len(seeds), "successes": wins})
             if video_dir is not None:
-                _write_videos(video_dir, task, wave, records)
+                _write_videos(video_dir, task, wave, records, videos_made_by(policy_path, task, perturbation))
     finally:
         bar.close()
         envs.close()
@@ -237,13 +237,26 @@ def _record(seed: int, info: dict, length: int, reward_sum: float, frames: list 
     return record
 
 
-def _write_videos(video_dir: Path, task: str, seeds: list[int], records: dict) -> None:
+def video_name(task: str, seed: int) -> str:
+    """The file an evaluation writes the episode of `seed` to, in its video folder."""
+    return f"{task}_seed{seed}.mp4"
+
+
+def videos_made_by(policy_path: str | Path, task: str, perturbation: str | None) -> dict:
+    """What an evaluation's videos show, as the folder's output record keeps it: another evaluation of the same
+    checkpoint, task and perturbation may replace them, any other needs --overwrite (`outputs.check_output_folder`)."""
+    checkpoint = str(Path(policy_path).expanduser().resolve())
+    return {"writer": "obsbench eval", "policy_path": checkpoint, "task": task, "perturbation": perturbation or "none"}
+
+
+def _write_videos(video_dir: Path, task: str, seeds: list[int], records: dict, made_by: dict) -> None:
     from lerobot.utils.io_utils import write_video
 
     video_dir.mkdir(parents=True, exist_ok=True)
-    for seed in seeds:
-        frames = records[seed].pop("frames")
-        write_video(str(video_dir / f"{task}_seed{seed}.mp4"), np.stack(frames), fps=CONTROL_FPS)
+    paths = [video_dir / video_name(task, seed) for seed in seeds]
+    for seed, path in zip(seeds, paths, strict=True):
+        write_video(str(path), np.stack(records[seed].pop("frames")), fps=CONTROL_FPS)
+    record_outputs(paths, made_by)  # after each wave, so a rerun of an interrupted evaluation may replace them
 
 
 def write_result(result: dict, out: Path | None) -> None:

@@ -39,7 +39,6 @@ from lerobot_obsbench.schema import (
     sensor_keys,
     stock_depth_key,
     validate_features,
-    with_calibrated_depth,
 )
 from lerobot_obsbench.spaces import DEFAULT_WORKSPACE, AdapterConfig
 
@@ -330,8 +329,9 @@ class ObservationConfig:
         if self.obs_space in ORACLE_SPACES:
             return reads | {PRIVILEGED_STATE_KEY}
         calibration = self.depth_calibration or dataset_calibration(dataset_meta)
-        policy_features = with_calibrated_depth(features, calibration)
-        cameras = validate_features(policy_features, self.obs_space, self.cameras or None, calibration)
+        # the dataset's own features: validate_features registers calibrated depth itself, and names a LeRobot
+        # depth map that lacks its calibration
+        cameras = validate_features(features, self.obs_space, self.cameras or None, calibration)
         for key in sensor_keys(self.obs_space, cameras):
             if key in features:
                 reads.add(key)

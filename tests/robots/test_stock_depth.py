@@ -307,3 +307,87 @@ def test_the_documented_calibration_example_is_what_attach_calibration_reads():
     calibration = CameraCalibration.from_dict({**example, "color_size": [480, 640], "depth_size": [480, 640]})
     for K in (calibration.color_intrinsics, calibration.depth_intrinsics):
         assert not intrinsics_off(np.array(K), (480, 640)).any()
+
+
+@pytest.fixture(scope="module")
+def uncalibrated_dataset(tmp_path_factory):
+    root = tmp_path_factory.mktemp("uncalibrated") / "koch_pick"
+    return scene.write_stock_dataset(root, video=False, episodes=1, frames=2)
+
+
+def _attach_front(root, tmp_path, *options: str) -> int:
+    calibration = scene.write_calibration_json(tmp_path / "front.json")
+    args = ["attach-calibration", "--root", str(root), "--camera", "front", "--from-json", str(calibration)]
+    return main([*args, *options])
+
+
+@pytest.mark.parametrize(
+    "content",
+    ['{"version": 1, "cameras": {"fro', "", "[]", '{"front": 5}', '{"version": 2, "cameras": {}}'],
+    ids=["truncated", "empty", "list", "another-layout", "another-version"],
+)
+def test_attach_overwrite_replaces_a_calibration_file_that_cannot_be_read(
+    uncalibrated_dataset, tmp_path, capsys, content
+):
+    """The way out the refusal names works: --overwrite writes a fresh file, which validate then accepts."""
+    import shutil
+
+    from lerobot_obsbench.camera_calibration import calibration_path
+
+    root = tmp_path / "koch_pick"
+    shutil.copytree(uncalibrated_dataset, root)
+    calibration_path(root).write_text(content)
+    assert _attach_front(root, tmp_path) == 2
+    assert "add --overwrite to replace the file" in capsys.readouterr().err
+    assert calibration_path(root).read_text() == content
+    assert _attach_front(root, tmp_path, "--overwrite") == 0
+    assert json.loads(calibration_path(root).read_text())["version"] == 1
+    np.testing.assert_allclose(read_calibration(root)["front"].depth_intrinsics, scene.K_DEPTH)
+    assert main(["validate", "--root", str(root), "--quick"]) == 0
+    assert "ok      pointcloud" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("options", [(), ("--overwrite",)])
+def test_attach_replaces_its_cameras_broken_entry_and_keeps_the_others(uncalibrated_dataset, tmp_path, options):
+    """A readable file keeps its other cameras as stored (--overwrite or not); the attached camera's own entry is
+    replaced even when it cannot be read (it used to end in a TypeError traceback)."""
+    import shutil
+
+    from lerobot_obsbench.camera_calibration import calibration_path
+
+    root = tmp_path / "koch_pick"
+    shutil.copytree(uncalibrated_dataset, root)
+    side = {"color_size": [480, 640], "note": "another camera's entry, kept as it is"}
+    calibration_path(root).write_text(json.dumps({"version": 1, "cameras": {"front": 5, "side": side}}))
+    assert _attach_front(root, tmp_path, *options) == 0
+    stored = json.loads(calibration_path(root).read_text())["cameras"]
+    assert stored["side"] == side
+    assert stored["front"]["depth_to_color"] == scene.DEPTH_TO_COLOR.tolist()
+
+
+def test_training_without_calibration_names_the_command_where_lerobot_train_stops(uncalibrated_dataset):
+    """lerobot-train asks the policy what it reads before it builds the policy; that refusal used to say 'Record
+    depth, intrinsics and cam2world' and never name attach-calibration."""
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.datasets import factory
+    from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+
+    from lerobot_obsbench.presets import preset_overrides
+
+    fields = {**preset_overrides("tiny", "obs_act", "pointcloud", None), "workspace": WORKSPACE}
+    config = PreTrainedConfig.get_choice_class("act_pcd")(obs_space="pointcloud", device="cpu", **fields)
+    meta = LeRobotDatasetMetadata("local/test", root=uncalibrated_dataset)
+    with pytest.raises(SchemaError, match=r"obsbench attach-calibration --root DATASET --camera (CAM|front) "):
+        factory.resolve_delta_timestamps(config, meta)  # the plugin's patched resolver, as lerobot-train calls it
+
+
+def test_a_refusal_lists_the_datasets_depth_map_among_its_keys(uncalibrated_dataset):
+    """The keys a refusal lists are the dataset's own, LeRobot's depth map included (it used to be left out)."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+
+    from lerobot_obsbench.schema import validate_features
+
+    features = dict(LeRobotDatasetMetadata("local/test", root=uncalibrated_dataset).features)
+    del features["observation.images.front"]  # the colour stream left out: rgb has no camera
+    with pytest.raises(SchemaError, match=r"the dataset has \['observation.images.front_depth', 'observation.state'\]"):
+        validate_features(features, "rgb")
