@@ -8,9 +8,11 @@ training is reported per task and space. `--wall-s` records the whole run's wall
 to the dry run's estimate for the grid from nothing, before and after the factors.
 
     .venv/bin/python -m benchmarks.bench_grid_cost --grid cpu-suite --results outputs/bench/cpu-suite/results.jsonl
-        [--wall-s 7200] [--workers 2] [--out FILE]
+        [--wall-s 7200] [--workers 2] [--out FILE] [--overwrite]
 
-Writes benchmarks/results/grid_cost_<grid>.json.
+Writes benchmarks/results/grid_cost_<grid>.json, or --out: an existing --out file is replaced only when this tool
+wrote it from the same grid and results (lerobot_obsbench/outputs.py's rule), or with --overwrite. The options and
+the output path are checked before the results are read.
 """
 
 from __future__ import annotations
@@ -21,11 +23,13 @@ from collections import defaultdict
 from pathlib import Path
 from unittest import mock
 
-from benchmarks.common import write
+from benchmarks.common import RESULTS, write
 from lerobot_obsbench.bench import cost
 from lerobot_obsbench.bench.grid import load_grid
 from lerobot_obsbench.bench.results import by_kind, read_results
 from lerobot_obsbench.bench.runner import load_work, print_plan
+from lerobot_obsbench.numeric import number_argument
+from lerobot_obsbench.outputs import OutputPathError, check_output_file, record_outputs
 
 
 def evaluation_rows(records: list[dict], image_sizes: dict[str, int]) -> dict[str, dict]:
@@ -72,20 +76,45 @@ def dry_run_hours(grid, workers: int) -> float:
     """The dry run's wall-time estimate with `workers` local workers for `grid` from nothing."""
     lines = []
     print_plan(grid, load_work(grid, Path("/nonexistent")), Path("/nonexistent"), "cpu", lines.append, workers)
-    found = [re.search(r"~([0-9.]+) h of wall time", line) for line in lines]
-    return float(next(m for m in found if m).group(1))
+    # with one worker the plan states only the one-worker cost, which is then the wall time
+    patterns = (r"~([0-9.]+) h of wall time", r"with one worker: ([0-9.]+) h on a 2-core CPU")
+    found = [match for pattern in patterns for line in lines if (match := re.search(pattern, line))]
+    return float(found[0].group(1))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--grid", required=True, help="the grid's name or YAML file")
     parser.add_argument("--results", type=Path, required=True, help="its results.jsonl")
-    parser.add_argument("--wall-s", type=float, help="the run's wall time from nothing, as `time` measured it")
-    parser.add_argument("--workers", type=int, default=2, help="the local workers it ran with")
-    parser.add_argument("--out", type=Path)
+    parser.add_argument(
+        "--wall-s",
+        type=number_argument(above=0),
+        help="the run's wall time from nothing in seconds, as `time` measured it (a finite number > 0)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=number_argument(whole=True, minimum=1),
+        default=2,
+        help="the local workers it ran with (a whole number >= 1)",
+    )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        help="the JSON file to write (default: benchmarks/results/grid_cost_GRID.json, regenerated like every "
+        "benchmark's result); an existing one is replaced only when this tool wrote it from the same grid and "
+        "results, or with --overwrite",
+    )
+    parser.add_argument("--overwrite", action="store_true", help="replace an --out file this tool did not write")
     args = parser.parse_args()
 
     grid = load_grid(args.grid)
+    name = f"grid_cost_{grid.name}"
+    out = args.out or RESULTS / f"{name}.json"
+    made_by = {"writer": "bench_grid_cost", "grid": grid.name, "results": str(args.results.resolve())}
+    try:
+        check_output_file(out, "--out", args.out is None or args.overwrite, [args.results], made_by)
+    except OutputPathError as err:
+        parser.error(str(err))
     records = read_results(args.results)
     foreign = {r["run_id"] for r in records} - {run.run_id for run in grid.expand()}
     if not records or foreign:
@@ -107,7 +136,9 @@ def main() -> None:
         "evaluation": evaluation,
         "training": training_rows(records, grid),
     }
-    write(f"grid_cost_{grid.name}", payload, args.out)
+    written = write(name, payload, out)
+    if args.out is not None:  # the default file is regenerated whatever wrote it: no record beside it
+        record_outputs([written], made_by)
 
 
 if __name__ == "__main__":

@@ -1,11 +1,15 @@
 """The device check: what a GPU machine runs of this project, in one command that writes one JSON.
 
-    python -m benchmarks.device_check --device cuda --checkpoint DIR --out DIR [--budget-s 420]
+    python -m benchmarks.device_check --device cuda --checkpoint DIR --out DIR [--budget-s 420] [--overwrite]
     .venv/bin/python -m benchmarks.device_check --device cpu --tiny --checkpoint DIR --out DIR   # the same, tiny
 
 Stages, in this order (the most wanted first), each timed and recorded on its own: a stage that fails is recorded
-with its error and traceback and the next one runs; `device_check.json` is rewritten after every stage, so a run
-stopped by its time limit keeps what it finished; a stage that would start after `--budget-s` is skipped, saying so.
+with its error and traceback and the next one runs; `device_check.json` is rewritten whole after every stage, so a
+run stopped by its time limit keeps what it finished; a stage other than `machine` and `imports` (which always run)
+that would start after `--budget-s` is skipped, saying so. The options and `--out` are checked before any stage:
+`--out` is a folder, and a `device_check.json` already in it is replaced only when the check wrote it for the same
+device, task and checkpoint, or with `--overwrite` (lerobot_obsbench/outputs.py's rule); `device_check.log` is
+appended to.
 
 - `machine`: the card, its driver, torch, the Vulkan driver SAPIEN finds, the versions of what the bundle carries;
 - `imports`: every module the check uses (`MODULES`; scripts/device_bundle.py carries what they need);
@@ -34,8 +38,10 @@ last run measured.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import importlib
 import json
+import math
 import os
 import subprocess
 import sys
@@ -70,6 +76,12 @@ STAGES = (
     "preprocess",
 )
 NEED_CHECKPOINT = ("device_tensors", "success")
+# The stages that run whatever --stages and --budget-s say: what the machine is and whether the check imports.
+ALWAYS_RUN = ("machine", "imports")
+RESULT = "device_check.json"
+# lerobot_obsbench/outputs.py's record of which command wrote which file of a folder, read and written here in its
+# format: the check's options are checked before the plugin is imported, which its imports stage reports on.
+OUTPUTS_RECORD = ".obsbench_outputs.json"
 # Where the NVIDIA driver of the lent GPU machines keeps its Vulkan ICD when /usr/share/vulkan has none (the
 # device tool's notes).
 NVIDIA_VULKAN_ICD = Path("/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json")
@@ -114,6 +126,88 @@ def use_nvidia_vulkan_icd() -> str | None:
     return None
 
 
+def budget_seconds(text: str) -> float:
+    """--budget-s read as lerobot_obsbench.numeric.number_argument(above=0) reads it (a finite number > 0), written
+    out here because the check must start, and report, where the plugin does not import."""
+    wanted = "a finite number > 0"
+    try:
+        value = float(text.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be {wanted}, got {text}")
+    return value
+
+
+def made_by(device: str, task: str, checkpoint: Path | None) -> dict:
+    """What a device_check.json holds, as the folder's output record keeps it: a check of the same device, task and
+    checkpoint may replace it, any other needs --overwrite."""
+    return {
+        "writer": "benchmarks.device_check",
+        "device": device,
+        "task": task,
+        "checkpoint": str(checkpoint.expanduser().resolve()) if checkpoint else None,
+    }
+
+
+def out_folder_problem(out: Path, checkpoint: Path | None, writer: dict, overwrite: bool) -> str | None:
+    """Why the check may not write into `out` (None when it may), decided as lerobot_obsbench/outputs.py's
+    `check_output_folder` decides for a command's output folder holding `RESULT`."""
+    if out.exists() and not out.is_dir():
+        return f"--out {out} is a file; give a folder"
+    if checkpoint is not None:
+        resolved, source = out.expanduser().resolve(), checkpoint.expanduser().resolve()
+        if resolved == source or source in resolved.parents:
+            return f"--out {out} would write over this command's input {checkpoint}; give a path outside it"
+    folder = out
+    while not folder.exists():  # the nearest existing folder decides whether the rest can be created
+        folder = folder.parent
+    if not folder.is_dir():
+        return f"--out {out}: {folder} is a file, so the folder cannot be created"
+    if not os.access(folder, os.W_OK):
+        return f"--out {out}: the folder {folder} is not writable; give another path"
+    if (out / RESULT).exists() and not overwrite and not is_own_output(out / RESULT, writer):
+        return (
+            f"--out {out} already holds {RESULT}, not this command's own output of the same inputs; add "
+            "--overwrite to replace what is there, or give another folder"
+        )
+    return None
+
+
+def _recorded(folder: Path) -> dict:
+    """The folder's output record ({} when there is none or it cannot be read: nothing is then the check's own)."""
+    try:
+        record = json.loads((folder / OUTPUTS_RECORD).read_text())
+    except (OSError, UnicodeDecodeError, ValueError):
+        return {}
+    files = record.get("files") if isinstance(record, dict) else None
+    return files if isinstance(files, dict) else {}
+
+
+def _sha256(path: Path) -> str:
+    with open(path, "rb") as stream:
+        return hashlib.file_digest(stream, "sha256").hexdigest()
+
+
+def is_own_output(path: Path, writer: dict) -> bool:
+    """Whether `path` is a file that `writer` wrote and that still holds what it wrote."""
+    return path.is_file() and _recorded(path.parent).get(path.name) == {**writer, "sha256": _sha256(path)}
+
+
+def _write_text_atomic(path: Path, text: str) -> None:
+    """`text` written through a temporary file renamed into place: a check stopped mid-write leaves a whole file."""
+    temporary = path.with_name(f".{path.name}.tmp")
+    temporary.write_text(text)
+    os.replace(temporary, path)
+
+
+def write_result(out: Path, result: dict, writer: dict) -> None:
+    """The check's JSON written whole into `out`, and noted in the folder's output record as `writer`'s."""
+    _write_text_atomic(out / RESULT, json.dumps(result, indent=2) + "\n")
+    record = {**_recorded(out), RESULT: {**writer, "sha256": _sha256(out / RESULT)}}
+    _write_text_atomic(out / OUTPUTS_RECORD, json.dumps({"files": record}, indent=1, sort_keys=True) + "\n")
+
+
 def import_modules() -> None:
     from lerobot_obsbench.envs.maniskill import import_maniskill
 
@@ -133,6 +227,7 @@ class DeviceCheck:
     def __init__(self, device: str, task: str, checkpoint: Path | None, out: Path, sizes: Sizes, budget_s: float):
         self.device, self.task, self.checkpoint, self.out, self.sizes = device, task, checkpoint, out, sizes
         self.started, self.budget_s = time.time(), budget_s
+        self.writer = made_by(device, task, checkpoint)
         self.result = {
             "benchmark": "device_check",
             "device": device,
@@ -145,8 +240,8 @@ class DeviceCheck:
 
     def run(self, name: str, stage, needs_checkpoint: bool = False) -> None:
         elapsed = time.time() - self.started
-        if elapsed > self.budget_s:
-            record = {"ok": False, "skipped": f"the budget of {self.budget_s:.0f} s was spent ({elapsed:.0f} s)"}
+        if name not in ALWAYS_RUN and elapsed > self.budget_s:
+            record = {"ok": False, "skipped": f"the budget of {self.budget_s:g} s was spent ({elapsed:.0f} s)"}
         elif needs_checkpoint and self.checkpoint is None:
             record = {"ok": False, "skipped": "no --checkpoint given"}
         else:
@@ -160,8 +255,7 @@ class DeviceCheck:
             record["seconds"] = round(time.time() - begin, 1)
         self.result["stages"][name] = record
         self.result["seconds"] = round(time.time() - self.started, 1)
-        self.out.mkdir(parents=True, exist_ok=True)
-        (self.out / "device_check.json").write_text(json.dumps(self.result, indent=2) + "\n")
+        write_result(self.out, self.result, self.writer)
 
     # ---- stages ------------------------------------------------------------------------------------------------
 
@@ -402,30 +496,47 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--device", default="cuda", help="cuda (the check's purpose) or cpu")
     parser.add_argument("--task", default=TASK, help="the simulated task (default: the quick grid's)")
     parser.add_argument("--checkpoint", type=Path, help="a pretrained_model directory trained on --task")
-    parser.add_argument("--out", type=Path, required=True, help="folder for device_check.json and device_check.log")
-    parser.add_argument("--budget-s", type=float, default=420.0, help="start no stage after this many seconds")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help=f"folder for {RESULT} (replaced only when a check of the same device, task and checkpoint wrote it, or "
+        "with --overwrite) and device_check.log (appended to)",
+    )
+    parser.add_argument("--overwrite", action="store_true", help=f"replace a {RESULT} in --out that another wrote")
+    parser.add_argument(
+        "--budget-s",
+        type=budget_seconds,
+        default=420.0,
+        help="start no stage but machine and imports after this many seconds (a finite number > 0)",
+    )
     parser.add_argument("--tiny", action="store_true", help="the smallest sizes (the CPU test)")
     parser.add_argument("--stages", nargs="+", help="run only these stages (machine and imports always run)")
     args = parser.parse_args(argv)
     if args.checkpoint is not None and not (args.checkpoint / "config.json").is_file():
         parser.error(f"--checkpoint {args.checkpoint}: no config.json there (give a pretrained_model directory)")
+    unknown = sorted(set(args.stages or ()) - set(STAGES))
+    if unknown:
+        parser.error(f"--stages: unknown {unknown}; choose from {', '.join(STAGES)}")
+    problem = out_folder_problem(
+        args.out, args.checkpoint, made_by(args.device, args.task, args.checkpoint), args.overwrite
+    )
+    if problem:
+        parser.error(problem)
     if args.device.startswith("cuda"):
         use_nvidia_vulkan_icd()
     args.out.mkdir(parents=True, exist_ok=True)
     check = DeviceCheck(args.device, args.task, args.checkpoint, args.out, TINY if args.tiny else FULL, args.budget_s)
-    unknown = sorted(set(args.stages or ()) - set(STAGES))
-    if unknown:
-        parser.error(f"--stages: unknown {unknown}; choose from {', '.join(STAGES)}")
     with open(args.out / "device_check.log", "a") as log:
         sys.stdout, sys.stderr = _Tee(sys.stdout, log), _Tee(sys.stderr, log)
         try:
             for name in STAGES:
-                if not args.stages or name in ("machine", "imports", *args.stages):
+                if not args.stages or name in (*ALWAYS_RUN, *args.stages):
                     check.run(name, getattr(check, name), needs_checkpoint=name in NEED_CHECKPOINT)
         finally:
             sys.stdout, sys.stderr = sys.stdout.stream, sys.stderr.stream
     failed = [name for name, record in check.result["stages"].items() if not record["ok"]]
-    print(f"wrote {args.out / 'device_check.json'} ({check.result['seconds']} s); not ok: {failed or 'none'}")
+    print(f"wrote {args.out / RESULT} ({check.result['seconds']} s); not ok: {failed or 'none'}")
 
 
 if __name__ == "__main__":

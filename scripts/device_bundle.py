@@ -13,8 +13,9 @@ tree. This builder, run here:
 3. downloads Debian's Vulkan loader packages (the device tool's list);
 4. adds the checkpoint the check evaluates (`--checkpoint`), and SAPIEN's GPU PhysX library where this machine
    has it (SAPIEN downloads it from GitHub at the first GPU simulation; the manifest says when it is missing);
-5. packs it all into parts of at most `--part-mib` MiB (a larger file is cut into pieces that the installer joins
-   and checks), each part with the manifest.
+5. packs it all into parts of at most `--part-mib` MiB (a larger file is cut into pieces that the installer joins),
+   each part with the manifest: every file and every piece with its size and SHA-256, which the installer checks
+   (and by which it tells one bundle from another).
 
     .venv/bin/python -m scripts.device_bundle --checkpoint outputs/.../pretrained_model [--out .device_bundle]
         [--part-mib 56] [--with-spconv]
@@ -44,6 +45,7 @@ import sys
 import tarfile
 import zipfile
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -284,9 +286,20 @@ def write_parts(items: list[Item], out: Path, limit: int, missing: list[dict]) -
             item = piece["item"]
             with open(item.path, "rb") as source, open(folder / piece["name"], "wb") as target:
                 source.seek(piece["index"] * limit)
-                target.write(source.read(piece["size"]))
-            item.pieces.append({"part": folder.name, "name": piece["name"], "index": piece["index"]})
+                data = source.read(piece["size"])
+                target.write(data)
+            digest = hashlib.sha256(data).hexdigest()
+            item.pieces.append(
+                {
+                    "part": folder.name,
+                    "name": piece["name"],
+                    "index": piece["index"],
+                    "bytes": len(data),
+                    "sha256": digest,
+                }
+            )
     manifest = {
+        "built": datetime.now(UTC).isoformat(timespec="seconds"),
         "part_limit_MiB": round(limit / MIB, 3),
         "parts": [
             {"name": f"part-{n:02d}", "MiB": round(sum(p["size"] for p in part) / MIB, 2), "files": len(part)}

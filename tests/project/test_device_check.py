@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import io
 import json
 import os
 import subprocess
@@ -14,6 +15,7 @@ import sys
 import tarfile
 import zipfile
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -174,10 +176,108 @@ def test_a_corrupt_piece_is_refused_and_a_folder_without_a_manifest_is_not_a_par
     piece.write_bytes(piece.read_bytes()[:-1] + b"!")
     install = [sys.executable, str(INSTALL), str(bundle / "part-00"), "--target", str(tmp_path / "site")]
     done = subprocess.run([*install, "--stash", str(tmp_path / "stash")], capture_output=True, text=True)
-    assert done.returncode == 1 and "onepkg-1.0-py3-none-any.whl is corrupt" in done.stderr
+    refused_in_one_line(done, "part-00/onepkg-1.0-py3-none-any.whl is not the piece its manifest lists")
     assert not (tmp_path / "site").exists()
     not_a_part = subprocess.run([sys.executable, str(INSTALL), str(tmp_path / "w")], capture_output=True, text=True)
-    assert not_a_part.returncode == 2 and "no manifest.json" in not_a_part.stderr
+    refused_in_one_line(not_a_part, "no manifest.json")
+
+
+def make_tar(path: Path, files: dict[str, bytes]) -> Path:
+    with tarfile.open(path, "w") as tar:
+        for name, data in files.items():
+            info = tarfile.TarInfo(name)
+            info.size = len(data)
+            tar.addfile(info, io.BytesIO(data))
+    return path
+
+
+def make_bundle(folder: Path, config: bytes, blob: bytes) -> list[Path]:
+    """A bundle of two archives, the larger cut into pieces over several parts: its part folders."""
+    build = folder / "build"
+    build.mkdir(parents=True)
+    items = [
+        Item("checkpoint.tar", "tar", make_tar(build / "checkpoint.tar", {"checkpoint/config.json": config})),
+        Item("blob.tar", "tar", make_tar(build / "blob.tar", {"blob/data.bin": blob})),
+    ]
+    write_parts(items, folder / "bundle", 64 * 1024, [])
+    return sorted((folder / "bundle").glob("part-*"))
+
+
+def install_part(part: Path, stash: Path) -> subprocess.CompletedProcess:
+    install = [sys.executable, str(INSTALL), str(part), "--target", str(stash.parent / "site"), "--stash", str(stash)]
+    return subprocess.run([*install, "--root", str(stash.parent / "root")], capture_output=True, text=True)
+
+
+def refused_in_one_line(done: subprocess.CompletedProcess, *wanted: str) -> None:
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert done.stderr.startswith("device_install: ") and done.stderr.count("\n") == 1, done.stderr
+    assert all(text in done.stderr for text in wanted), done.stderr
+
+
+@pytest.mark.parametrize("second", ["the same part again", "another part"])
+def test_a_part_of_another_bundle_is_refused_saying_what_differs(tmp_path, second):
+    blob = os.urandom(150_000)
+    first = make_bundle(tmp_path / "a", b'{"type": "obs_act"}', blob)
+    rebuilt = make_bundle(tmp_path / "b", b'{"type": "obs_diffusion"}', blob)  # a new checkpoint, the same blob
+    assert [p.name for p in first] == [p.name for p in rebuilt] and len(first) == 3
+    stash = tmp_path / "stash"
+    for part in first if second == "the same part again" else first[:1]:
+        assert install_part(part, stash).returncode == 0
+    stashed = {p.name: p.read_bytes() for p in (stash / "pieces").iterdir()}
+    part = rebuilt[-1] if second == "the same part again" else rebuilt[1]
+    done = install_part(part, stash)
+    refused_in_one_line(done, f"{part.name} belongs to another bundle", "checkpoint.tar differs", f"rm -rf {stash}")
+    assert "blob.tar" not in done.stderr  # the same file in both bundles is not named as a difference
+    assert {p.name: p.read_bytes() for p in (stash / "pieces").iterdir()} == stashed
+    if second == "the same part again":
+        assert json.loads((stash / "checkpoint" / "config.json").read_text()) == {"type": "obs_act"}
+
+
+def test_a_piece_is_checked_by_its_sha256_in_the_part_that_carries_it(tmp_path):
+    """A damaged piece of a file cut over several parts is refused when its own part arrives, not after the last."""
+    parts = make_bundle(tmp_path, b"{}", os.urandom(150_000))
+    manifest = json.loads((parts[0] / "manifest.json").read_text())
+    piece = next(p for item in manifest["items"] for p in item["pieces"] if p["part"] == "part-00")
+    damaged = parts[0] / piece["name"]
+    damaged.write_bytes(damaged.read_bytes()[:-1] + b"!")
+    stash = tmp_path / "stash"
+    refused_in_one_line(install_part(parts[0], stash), f"part-00/{piece['name']}", "sha256", "copy part-00 again")
+    assert not (stash / "pieces" / piece["name"]).exists()
+
+
+@pytest.mark.parametrize(
+    "damage, wanted",
+    [
+        ("a piece removed", ["part-01 lacks", "copy part-01 again"]),
+        ("the manifest truncated", ["part-01/manifest.json", "truncated or damaged", "copy part-01 again"]),
+        ("the manifest not JSON", ["part-01/manifest.json", "truncated or damaged"]),
+        ("the manifest of another shape", ["part-01/manifest.json", "not a manifest of scripts/device_bundle.py"]),
+        ("a piece without its sha256", ["part-01/manifest.json", "sha256", "rebuild the bundle"]),
+        ("the folder renamed", ["part-1 is not one of its manifest's parts (part-00, part-01, part-02)"]),
+    ],
+)
+def test_an_incomplete_part_or_a_damaged_manifest_is_refused_in_one_line(tmp_path, damage, wanted):
+    parts = make_bundle(tmp_path, b"{}", os.urandom(150_000))
+    part = parts[1]
+    manifest_path = part / "manifest.json"
+    text = manifest_path.read_text()
+    manifest = json.loads(text)
+    if damage == "a piece removed":
+        next(p for p in part.iterdir() if p.name != "manifest.json").unlink()
+    elif damage == "the manifest truncated":
+        manifest_path.write_text(text[: len(text) // 2])
+    elif damage == "the manifest not JSON":
+        manifest_path.write_bytes(b"\x00\xff" * 100)
+    elif damage == "the manifest of another shape":
+        manifest_path.write_text(json.dumps({"items": 3}))
+    elif damage == "a piece without its sha256":
+        del manifest["items"][0]["pieces"][0]["sha256"]
+        manifest_path.write_text(json.dumps(manifest))
+    else:
+        part = part.rename(part.with_name("part-1"))
+    stash = tmp_path / "stash"
+    refused_in_one_line(install_part(part, stash), *wanted)
+    assert not (stash / "pieces").is_dir() or not any((stash / "pieces").iterdir())
 
 
 def test_the_part_limit_leaves_room_for_the_working_tree():
@@ -200,11 +300,133 @@ def test_the_bundle_carries_what_the_check_imports_and_the_image_lacks():
     assert "spconv" not in needed and "cumm" not in needed
 
 
-def test_a_check_out_of_time_skips_its_stages_and_still_writes_its_json(tmp_path):
-    device_check.main(["--device", "cpu", "--out", str(tmp_path), "--budget-s", "0"])
+@pytest.fixture
+def stages_stubbed(monkeypatch):
+    """Every stage replaced by one that records that it ran, and a clock that advances 100 s at each reading: the
+    scheduling and the refusals are tested without the stages' work or real time."""
+    ran = []
+    for name in device_check.STAGES:
+        monkeypatch.setattr(device_check.DeviceCheck, name, lambda self, name=name: ran.append(name) or {"ran": name})
+    clock = iter(range(0, 10**9, 100))
+    monkeypatch.setattr(device_check, "time", SimpleNamespace(time=lambda: next(clock)))
+    return ran
+
+
+def test_out_of_time_the_machine_and_imports_stages_still_run_and_the_rest_are_skipped(stages_stubbed, tmp_path):
+    device_check.main(["--device", "cpu", "--out", str(tmp_path), "--budget-s", "50"])
     result = json.loads((tmp_path / "device_check.json").read_text())
+    assert stages_stubbed == ["machine", "imports"]
     assert list(result["stages"]) == list(device_check.STAGES)
-    assert all(not s["ok"] and "budget of 0 s was spent" in s["skipped"] for s in result["stages"].values())
+    assert result["stages"]["machine"] == {"ok": True, "ran": "machine", "seconds": 100}
+    assert result["stages"]["imports"]["ok"] and result["stages"]["imports"]["ran"] == "imports"
+    skipped = [result["stages"][name] for name in device_check.STAGES[2:]]
+    assert all(not s["ok"] and "the budget of 50 s was spent" in s["skipped"] for s in skipped)
+
+
+def test_the_budget_is_read_by_the_projects_number_rule():
+    """The check reads --budget-s without importing the plugin (its machine and imports stages must run where the
+    plugin does not import), so its reading is held here to lerobot_obsbench.numeric's for the same bounds."""
+    import argparse
+
+    from lerobot_obsbench.numeric import number_argument
+
+    rule = number_argument(above=0)
+    for text in ("420", "0.5", "1e3", " 7 ", "0", "-1", "nan", "-inf", "inf", "1e400", "soon", "", "True"):
+        outcomes = []
+        for read in (rule, device_check.budget_seconds):
+            try:
+                outcomes.append(("accepted", read(text)))
+            except argparse.ArgumentTypeError as err:
+                outcomes.append(("refused", str(err)))
+        assert outcomes[0] == outcomes[1], text
+
+
+@pytest.mark.parametrize(
+    "budget, message",
+    [
+        ("0", "argument --budget-s: must be a finite number > 0, got 0"),
+        ("-60", "argument --budget-s: must be a finite number > 0, got -60"),
+        ("nan", "argument --budget-s: must be a finite number > 0, got nan"),
+        ("inf", "argument --budget-s: must be a finite number > 0, got inf"),
+        ("7min", "argument --budget-s: expected a finite number > 0, got '7min'"),
+    ],
+)
+def test_a_budget_that_is_not_a_finite_number_above_zero_is_refused_before_any_stage(
+    stages_stubbed, tmp_path, capsys, budget, message
+):
+    out = tmp_path / "check"
+    with pytest.raises(SystemExit) as exit_:
+        device_check.main(["--device", "cpu", "--out", str(out), "--budget-s", budget])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and message in err and "Traceback" not in err
+    assert stages_stubbed == [] and not out.exists()
+
+
+@pytest.mark.parametrize(
+    "case, message",
+    [
+        ("a file", "is a file; give a folder"),
+        ("a folder holding a device_check.json written by hand", "add --overwrite to replace what is there"),
+        ("a folder holding a check of another task", "not this command's own output of the same inputs"),
+        ("the checkpoint", "would write over this command's input"),
+        ("under a file", "is a file, so the folder cannot be created"),
+    ],
+)
+def test_an_out_folder_it_cannot_or_may_not_write_is_refused_before_any_stage(
+    stages_stubbed, tmp_path, capsys, case, message
+):
+    """Refused as lerobot_obsbench/outputs.py refuses a command's output folder, in the same words (the check
+    decides without importing the plugin, whose import its imports stage reports on)."""
+    from lerobot_obsbench.outputs import OutputPathError, check_output_folder
+
+    checkpoint = tmp_path / "pretrained_model"
+    checkpoint.mkdir()
+    (checkpoint / "config.json").write_text("{}")
+    notes = tmp_path / "notes.txt"
+    notes.write_text("my own notes\n")
+    by_hand = tmp_path / "by-hand"
+    by_hand.mkdir()
+    (by_hand / "device_check.json").write_text("my own notes\n")
+    other_task = tmp_path / "other-task"
+    device_check.main(
+        ["--device", "cpu", "--task", "PickCube-v1", "--checkpoint", str(checkpoint), "--out", str(other_task)]
+    )
+    earlier = (other_task / "device_check.json").read_text()
+    stages_stubbed.clear()
+    out = {
+        "a file": notes,
+        "a folder holding a device_check.json written by hand": by_hand,
+        "a folder holding a check of another task": other_task,
+        "the checkpoint": checkpoint,
+        "under a file": notes / "check",
+    }[case]
+    argv = ["--device", "cpu", "--checkpoint", str(checkpoint), "--out", str(out), "--budget-s", "1"]
+    with pytest.raises(SystemExit) as exit_:
+        device_check.main(argv)
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and f"--out {out}" in err and message in err and "Traceback" not in err
+    assert stages_stubbed == [] and notes.read_text() == "my own notes\n"
+    assert (by_hand / "device_check.json").read_text() == "my own notes\n"
+    assert (other_task / "device_check.json").read_text() == earlier
+    assert sorted(p.name for p in checkpoint.iterdir()) == ["config.json"]
+    writer = device_check.made_by("cpu", device_check.TASK, checkpoint)
+    with pytest.raises(OutputPathError) as refused:
+        check_output_folder(out, "--out", [checkpoint], [device_check.RESULT], writer)
+    assert f"error: {refused.value}\n" in err
+
+
+def test_an_out_folder_with_the_checks_own_json_is_rewritten_and_another_one_only_when_told(stages_stubbed, tmp_path):
+    from lerobot_obsbench.outputs import is_own_output
+
+    device_check.main(["--device", "cpu", "--out", str(tmp_path), "--stages", "machine"])
+    device_check.main(["--device", "cpu", "--out", str(tmp_path), "--stages", "preprocess"])  # its own: rewritten
+    result = tmp_path / device_check.RESULT
+    assert list(json.loads(result.read_text())["stages"]) == ["machine", "imports", "preprocess"]
+    assert is_own_output(result, device_check.made_by("cpu", device_check.TASK, None))  # the package's record
+    result.write_text("my own notes\n")
+    device_check.main(["--device", "cpu", "--out", str(tmp_path), "--stages", "machine", "--overwrite"])
+    assert json.loads(result.read_text())["benchmark"] == "device_check"
+    assert (tmp_path / "device_check.log").read_text().count("== machine") == 3  # the log is appended to, kept
 
 
 @pytest.mark.parametrize(
