@@ -31,6 +31,7 @@ import os
 import time
 from collections.abc import Callable
 
+import av
 import numpy as np
 import torch
 from datasets.formatting.formatting import NumpyArrowExtractor
@@ -42,6 +43,7 @@ from lerobot.datasets.depth_utils import MM_PER_METRE
 from lerobot_obsbench.errors import ConfigError
 from lerobot_obsbench.numeric import number_from_environment
 from lerobot_obsbench.patches import LeRobotTorchFormatter
+from lerobot_obsbench.schema import SchemaError
 
 logger = logging.getLogger(__name__)
 
@@ -49,6 +51,9 @@ READER_ENV = "OBSBENCH_DATASET_READER"
 MEMORY_ENV = "OBSBENCH_DATASET_MEMORY_MB"
 READERS = ("memory", "filtered", "stock")
 DEFAULT_MEMORY_MB = 2048
+# What LeRobot's decoders raise on a truncated or damaged video: torchcodec RuntimeError or ValueError, PyAV its
+# FFmpegError (InvalidDataError, an OSError for a broken container), LeRobot a FrameTimestampError for missing frames
+VIDEO_DECODE_ERRORS = (RuntimeError, ValueError, OSError, av.error.FFmpegError)
 # LeRobot's own per-row columns, which its reader uses to place a sample in its episode
 INDEX_COLUMNS = ("timestamp", "frame_index", "episode_index", "index", "task_index")
 
@@ -96,6 +101,36 @@ def every_feature(delta_timestamps: dict | None) -> dict | None:
     return dict(delta_timestamps) if delta_timestamps else None
 
 
+def query_videos(reader: DatasetReader, query: dict[str, list[float]], ep_idx: int) -> dict[str, torch.Tensor]:
+    """LeRobot's `_query_videos` (frames of episode `ep_idx` at each video key's timestamps); a video that cannot be
+    decoded is refused in one line naming its file, instead of the decoder's traceback."""
+    try:
+        return reader._query_videos(query, ep_idx)
+    except VIDEO_DECODE_ERRORS:
+        for key, timestamps in query.items():  # LeRobot decodes the keys together: find the file that failed
+            try:
+                reader._query_videos({key: timestamps}, ep_idx)
+            except VIDEO_DECODE_ERRORS as err:
+                raise undecodable_video(reader, key, ep_idx, err) from None
+        raise
+
+
+def undecodable_video(reader: DatasetReader, key: str, ep_idx: int, err: Exception) -> SchemaError:
+    """The one-line refusal of video `key`'s file for episode `ep_idx`, which the decoder failed on with `err`."""
+    path = reader.root / reader._meta.get_video_file_path(ep_idx, key)
+    return SchemaError(
+        f"{path}: the {key} frames of episode {ep_idx} cannot be decoded ({error_reason(err)}): the video is "
+        "truncated or damaged (an interrupted copy, download or recording); copy it again, or drop its episodes "
+        f"(lerobot-edit-dataset --operation.type=delete_episodes); `obsbench validate --root {reader.root}` decodes "
+        "every frame training reads"
+    )
+
+
+def error_reason(err: Exception) -> str:
+    """A decoder's error in one line: its first."""
+    return str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+
+
 class StreamedRows:
     """The read keys of each sample, streamed from the dataset's files as LeRobot does, without the others."""
 
@@ -112,7 +147,7 @@ class StreamedRows:
     def frames(self, ep_idx: int, rels_by_video: dict[str, list[int]]) -> dict[str, torch.Tensor]:
         timestamps = self.table.select_columns(["timestamp"])
         query = {key: torch.stack(timestamps[rels]["timestamp"]).tolist() for key, rels in rels_by_video.items()}
-        return self.reader._query_videos(query, ep_idx)
+        return query_videos(self.reader, query, ep_idx)
 
 
 class MemoryRows:
@@ -132,7 +167,7 @@ class MemoryRows:
         for ep_idx in np.unique(episodes).tolist():
             rels = np.flatnonzero(episodes == ep_idx)
             query = {key: timestamps[rels].tolist() for key in videos}
-            for key, frames in reader._query_videos(query, ep_idx).items():
+            for key, frames in query_videos(reader, query, ep_idx).items():
                 frames = frames.reshape(len(rels), *frames.shape[-3:])  # one-frame episodes come back squeezed
                 for rel, frame in zip(rels.tolist(), frames, strict=True):
                     per_row[key][rel] = frame

@@ -383,9 +383,11 @@ class ObservationAdapter(nn.Module):
         if self.training and self.frames_seen >= EMPTY_CHECK_FRAMES and fraction > MAX_EMPTY_FRACTION:
             raise SchemaError(
                 f"{self.frames_empty} of the first {self.frames_seen} training frames have no valid point inside "
-                f"the workspace {workspace} in {', '.join(depth_key(c) for c in self.config.cameras)}: the data, "
-                "not a dropout. Check that depth is in millimetres, that cam2world maps camera -> world, and "
-                "--policy.workspace (`obsbench validate --root DATASET` scans every frame)."
+                f"the workspace {workspace} in {', '.join(depth_key(c) for c in self.config.cameras)} (or the "
+                "observation.images.<cam>_depth LeRobot recorded, registered into them): the data, not a dropout. "
+                "Check that depth is in millimetres, that cam2world maps camera -> world, and --policy.workspace: "
+                "`obsbench validate --root DATASET` decodes every frame's depth and refuses depth in which no frame "
+                "holds valid depth or whose median is not in millimetres."
             )
 
 

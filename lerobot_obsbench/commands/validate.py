@@ -1,5 +1,5 @@
 """`obsbench validate`: check that a LeRobotDataset serves each observation space, from its metadata and every
-frame's sensors (`datasets.validation`)."""
+frame the asked spaces train from, decoded as training decodes it (`datasets.validation`)."""
 
 from __future__ import annotations
 
@@ -13,8 +13,10 @@ from lerobot_obsbench.schema import OBS_SPACES
 
 NAME = "validate"
 HELP = (
-    "check that a LeRobotDataset serves each observation space: keys and shapes, then every frame's "
-    "depth, intrinsics and camera pose (docs/observation-spaces.md); exit code 1 when an asked space fails"
+    "check that a LeRobotDataset serves each observation space: keys and shapes, then every frame the asked spaces "
+    "train from (depth, intrinsics and camera pose arrays; colour and LeRobot's depth maps decoded), saying what it "
+    "read (docs/observation-spaces.md); exit code 1 when an asked space fails, 2 when a file cannot be decoded or "
+    "LeRobot depth holds no millimetres"
 )
 EXAMPLE = """obsbench validate --root data/pickcube --obs-space pointcloud"""
 
@@ -25,7 +27,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--obs-space", default="all", choices=("all", *OBS_SPACES))
     p.add_argument("--cameras", nargs="*", default=[], help="camera names (default: every camera found)")
     p.add_argument(
-        "--quick", action="store_true", help="check the metadata only (default: also scan every frame's sensors)"
+        "--quick",
+        action="store_true",
+        help="check the metadata only (default: also read every frame the asked spaces train from)",
     )
 
 
