@@ -27,7 +27,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--height", type=common.positive_int, default=720)
     p.add_argument("--fps", type=common.positive_int, default=30)
     p.add_argument("--views", type=common.positive_int, default=10, help="frames to average")
-    p.add_argument("--interval", type=common.non_negative_float, default=0.1, help="seconds between views")
+    p.add_argument(
+        "--interval",
+        type=common.non_negative_float,
+        default=0.1,
+        help="seconds between views (a recording's: in its own time, at --fps)",
+    )
     p.add_argument("--min-views", type=common.positive_int, default=5)
     p.add_argument(
         "--min-corners",
@@ -96,17 +101,23 @@ def run(args: argparse.Namespace) -> int:
         fps=args.fps,
         downsample=1,
         warmup_s=0.0 if args.playback else 1.0,  # a recording needs no auto-exposure to settle
+        # a recording's every frameset, in order, however slowly this machine reads them
+        playback_real_time=not args.playback,
     )
     camera = RealSenseRGBDCamera(config)
     camera.connect()
     try:
         images = []
-        # a recording has no frame period to miss (it ends rather than stalls), so a reader thread slowed by a
-        # loaded machine may take longer than a live camera's 2 s without anything being wrong
-        timeout_ms = 30_000 if args.playback else 2000
-        for _ in range(args.views):
-            images.append(camera.async_read(timeout_ms=timeout_ms))
-            time.sleep(args.interval)
+        if args.playback:  # views `interval` apart in the recording's own time
+            stride = max(1, round(args.interval * args.fps))
+            for _ in range(args.views):
+                for _ in range(stride):
+                    image = camera.async_read(timeout_ms=60_000)  # bounds a hang: a recording's frames come
+                images.append(image)
+        else:
+            for _ in range(args.views):
+                images.append(camera.async_read(timeout_ms=2000))
+                time.sleep(args.interval)
         K, serial = camera.K, camera.serial_number
     finally:
         camera.disconnect()

@@ -86,7 +86,9 @@ class SceneCameras:
         cam = self.cameras[name]
         if not is_rgbd(self.configs[name]):
             return {name: cam.async_read()}
-        colour, depth = cam.async_read_rgbd(timeout_ms=1000)
+        # a live camera that sends nothing for a second has stalled; a recording played as fast as it is read
+        # (`lossless`) always sends its next frameset, however slowly this machine registers it
+        colour, depth = cam.async_read_rgbd(timeout_ms=60_000 if getattr(cam, "lossless", False) else 1000)
         return {
             name: colour,
             name + DEPTH_SUFFIX: depth,

@@ -60,7 +60,10 @@ def test_record_train_and_roll_out_on_the_fake_bimanual_robot(tmp_path, syntheti
         extrinsics,
     )
     calibrate_all(tmp_path)
-    camera = RealSenseRGBDCameraConfig(playback_file=str(bag), width=W, height=H, downsample=1, warmup_s=0)
+    # played as fast as the loop reads it: the sessions never outrun the recording, however loaded the machine
+    camera = RealSenseRGBDCameraConfig(
+        playback_file=str(bag), width=W, height=H, downsample=1, warmup_s=0, playback_real_time=False
+    )
     robot_cfg, teleop_cfg = bimanual(tmp_path, cameras={"top": camera})
     robot_cfg.extrinsics_dir = str(extrinsics)
     root = tmp_path / "dataset"
