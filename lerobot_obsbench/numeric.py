@@ -41,7 +41,9 @@ def _fits(
     below: float | None = None,
     whole: bool = False,
 ) -> bool:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    if isinstance(value, float) and not math.isfinite(value):  # (a Python int is finite, however large)
         return False
     if whole and value != int(value):
         return False
