@@ -247,6 +247,10 @@ class Grid:
     # > 0: every checkpoint is evaluated on this many validation episodes and the best one is also evaluated
     # on the test seeds (the report shows it by default); 0: the last checkpoint only
     validation_episodes: int = 0
+    # optimizer steps whose checkpoints the test seeds also evaluate (the nominal scene): each run's learning curve,
+    # ending at its last checkpoint; every step below the runs' budgets. The checkpoints are saved besides
+    # `checkpoints`' and kept
+    eval_checkpoints: list[int] = field(default_factory=list)
     # demonstrations recorded beyond the most any run trains on, never trained on: each trained run's diagnostics
     # (open-loop action error, objects' pixel size and point-token share; bench/diagnostics.py) are computed on
     # them. 0: no diagnostics but the loss curve
@@ -333,11 +337,15 @@ class Grid:
         return ("last", "best") if self.validation_episodes else ("last",)
 
     def evaluations(self, run: RunSpec) -> list[EvalSpec]:
-        """The run's test evaluations: each tested checkpoint, nominally and under every perturbation."""
+        """The run's test evaluations: each tested checkpoint, nominally and under every perturbation, then its
+        learning curve's earlier checkpoints (nominally)."""
         return [
             EvalSpec(run.run_id, checkpoint, "test", self.eval_episodes, perturbation, self.max_steps(run))
             for checkpoint in self.test_checkpoints()
             for perturbation in ("none", *self.perturbations_for(run))
+        ] + [
+            EvalSpec(run.run_id, f"step:{step}", "test", self.eval_episodes, "none", self.max_steps(run))
+            for step in sorted(self.eval_checkpoints)  # checked below every run's budget when the grid loads
         ]
 
     def perturbations_for(self, run: RunSpec) -> list[str]:
@@ -485,6 +493,7 @@ NUMERIC_FIELDS = {
     "eval_batch_size": {"whole": True, "minimum": 1},
     "episode_length": {"whole": True, "minimum": 1},
     "held_out_demos": {"whole": True, "minimum": 0},
+    "eval_checkpoints": {"whole": True, "minimum": 1},
 }
 TEXT_LIST_FIELDS = ("cameras", "perturbations")
 
@@ -626,6 +635,7 @@ def _check_grid(grid: Grid, rlbench: bool, name: str) -> None:
     if not grid.variants or not all(isinstance(v, dict) for v in grid.variants):
         raise GridError(f"{name}: variants is a list of mappings of --policy.* fields, e.g. [{{}}, {{sampling: pre}}]")
     _check_listed_once(grid.variants, "variants", name)
+    _check_curve(grid, name)
     for where, fields in (
         ("policy_overrides", grid.policy_overrides),
         *((f"space_overrides.{space}", v) for space, v in grid.space_overrides.items()),
@@ -639,6 +649,24 @@ def _check_grid(grid: Grid, rlbench: bool, name: str) -> None:
                 f"list the value there instead (the run would train one thing while its results say another)"
             )
     check_policy_configs(grid, name)
+
+
+def _check_curve(grid: Grid, name: str) -> None:
+    """`eval_checkpoints` lie below every run's budget, which must be known before training (not frame_epochs)."""
+    if not grid.eval_checkpoints:
+        return
+    for run in grid.expand():
+        if run.budget_unit == "frame_epochs":
+            raise GridError(
+                f"{name}: eval_checkpoints are optimizer steps, and a frame_epochs budget's steps are known only "
+                "once the demonstrations are recorded; give the budget as steps, samples or demo_epochs"
+            )
+        late = [step for step in grid.eval_checkpoints if step >= run.steps()]
+        if late:
+            raise GridError(
+                f"{name}: eval_checkpoints {late} are not below the {run.steps()} steps {run.method} trains on "
+                f"{run.task} (the last checkpoint ends every curve); list earlier steps"
+            )
 
 
 def _check_rlbench(values: dict, tasks: list, rlbench: list[str], name: str) -> None:

@@ -54,8 +54,8 @@ class DemoJob:
 @dataclass(frozen=True)
 class TrainJob:
     """Training one run with stock lerobot-train on its `dataset` (resuming from its last checkpoint after a kill),
-    saving `checkpoints` evenly spaced checkpoints, then its diagnostics on the dataset's last `held_out`
-    demonstrations."""
+    keeping `checkpoints` evenly spaced checkpoints and those of its learning curve's `curve` steps, then its
+    diagnostics on the dataset's last `held_out` demonstrations."""
 
     run: RunSpec
     dataset: str
@@ -65,6 +65,7 @@ class TrainJob:
     held_out: int
     loader_workers: int
     threads: int | None
+    curve: tuple[int, ...] = ()
 
     @property
     def cpus(self) -> int:
@@ -84,6 +85,7 @@ class TrainJob:
             held_out=self.held_out,
             loader_workers=self.loader_workers,
             threads=self.threads,
+            curve=self.curve,
         )
 
     def describe(self) -> str:

@@ -30,7 +30,7 @@ from lerobot_obsbench.bench.engines import make_engine
 from lerobot_obsbench.bench.grid import BUDGET_UNITS, EvalSpec, Grid, GridError, RunSpec
 from lerobot_obsbench.bench.jobs import DemoJob, EvalJob, Job, TrainJob
 from lerobot_obsbench.bench.results import RESULTS_FILE, append_result, by_kind, read_results
-from lerobot_obsbench.bench.units import demo_dir, demos_recorded, evaluation_progress, training_progress
+from lerobot_obsbench.bench.units import demo_dir, demos_recorded, evaluation_progress, run_dir, training_progress
 from lerobot_obsbench.envs.base_task import TASKS, asset_help, missing_assets, task_spec
 from lerobot_obsbench.envs.vector import default_batch_size
 from lerobot_obsbench.locks import exclusive_output
@@ -106,16 +106,34 @@ def copy_trained_runs(grid: Grid, runs: list[RunSpec], records: list[dict], resu
     return copies
 
 
+def missing_curve(grid: Grid, work: Work) -> dict[str, list[int]]:
+    """run id -> the `eval_checkpoints` steps a trained run kept no checkpoint of (it was trained before the grid
+    listed them): those points of its curve cannot be evaluated without training it again."""
+    missing = {}
+    for run in work.runs:
+        train = work.trained.get(run.run_id)
+        steps = [s for s in sorted(grid.eval_checkpoints) if train is not None and str(s) not in train["checkpoints"]]
+        if steps:
+            missing[run.run_id] = steps
+    return missing
+
+
 def print_plan(grid: Grid, work: Work, out: Path, device: str, echo=print, workers: int = 1) -> None:
     """What `grid` still has to do in `out`, run by run, and its rough cost (planning on `device` with `workers`
     local workers)."""
+    missing = missing_curve(grid, work)
     done_evals = sum(s.eval_id in work.evaluated for r in work.runs for s in grid.evaluations(r))
-    all_evals = sum(len(grid.evaluations(r)) for r in work.runs)
+    all_evals = sum(len(grid.evaluations(r)) for r in work.runs) - sum(len(steps) for steps in missing.values())
     echo(
         f"grid {grid.name}: {len(work.runs)} runs, {len(work.runs) - len(work.to_train)} already trained, "
         f"{len(work.to_train)} to train; {done_evals} of {all_evals} test evaluations done; results -> "
         f"{out / RESULTS_FILE}"
     )
+    for run_id, steps in missing.items():
+        echo(
+            f"  run {run_id} kept no checkpoint at steps {steps} of eval_checkpoints (it was trained before they "
+            f"were listed): its learning curve lacks them; delete {run_dir(out, run_id)} to train it again"
+        )
     if grid.checkpoints_from:
         echo(f"  evaluates the checkpoints trained by {grid.checkpoints_from} (trains nothing)")
     cost = PlanCost()
@@ -136,7 +154,8 @@ def print_plan(grid: Grid, work: Work, out: Path, device: str, echo=print, worke
     for run in work.runs:
         steps, exact = planned_steps(run, out)
         train = run.run_id not in work.trained
-        evals = [s for s in grid.evaluations(run) if s.eval_id not in work.evaluated]
+        skipped = {f"step:{step}" for step in missing.get(run.run_id, [])}
+        evals = [s for s in grid.evaluations(run) if s.eval_id not in work.evaluated and s.checkpoint not in skipped]
         if grid.validation_episodes:  # one per checkpoint, for the estimate
             evals += grid.validations(run, list(range(grid.per_policy("checkpoints", run.policy))))
         if not train and not evals:
@@ -231,6 +250,7 @@ class Driver:
                 held_out=self.grid.held_out_demos,
                 loader_workers=self.loader_workers,
                 threads=self.threads,
+                curve=tuple(sorted(self.grid.eval_checkpoints)),
             )
         )
 
@@ -282,6 +302,11 @@ class Driver:
                 self.copies.setdefault(twin.eval_id, []).append(spec.config())
                 if twin.eval_id in self.work.evaluated:
                     self.copy_records(twin.eval_id)
+                continue
+            if spec.checkpoint.startswith("step:"):  # a learning curve's point (missing ones: `missing_curve`)
+                step = int(spec.checkpoint.removeprefix("step:"))
+                if str(step) in train["checkpoints"]:
+                    self.evaluate(run, spec, step)
                 continue
             self.evaluate(run, spec, last if spec.checkpoint == "last" else best)
 
@@ -491,7 +516,7 @@ def run_grid(
         try:
             driver.start()
             if not driver.pending:
-                echo("nothing to do: every run is trained and every evaluation recorded")
+                echo("nothing to do: every run is trained and every evaluation it can make recorded")
             driver.loop(progress_every)
         except KeyboardInterrupt:
             driver.engine.shutdown(abort=True)

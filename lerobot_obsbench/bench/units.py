@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import ctypes
 import json
+import math
 import os
 import platform
 import re
@@ -197,8 +198,22 @@ def resumable_step(output_dir: Path) -> int | None:
 
 
 def save_every(steps: int, checkpoints: int) -> int:
-    """lerobot-train's save_freq for `checkpoints` evenly spaced checkpoints (the last at `steps`)."""
+    """The spacing of `checkpoints` evenly spaced checkpoints (the last at `steps`)."""
     return max(1, -(-steps // max(checkpoints, 1)))
+
+
+def kept_checkpoints(steps: int, checkpoints: int, curve: tuple[int, ...] = ()) -> list[int]:
+    """The steps whose checkpoints a run keeps: `checkpoints` evenly spaced ones (the last at `steps`) and the
+    learning curve's `curve` steps."""
+    every = save_every(steps, checkpoints)
+    return sorted({*range(every, steps, every), steps, *curve})
+
+
+def save_freq(kept: list[int]) -> int:
+    """lerobot-train's `--save_freq` (one spacing for every checkpoint) that saves each of the `kept` steps: the
+    greatest common divisor of those before the last, which lerobot-train always saves; the others it saves are
+    deleted once training ends."""
+    return math.gcd(*kept[:-1]) if len(kept) > 1 else kept[0]
 
 
 def train_unit(
@@ -210,8 +225,10 @@ def train_unit(
     held_out: int = 0,
     loader_workers: int = 0,
     threads: int | None = None,
+    curve: tuple[int, ...] = (),
 ) -> dict:
-    """Train one run with stock lerobot-train (resuming from its last checkpoint after a kill), then compute its
+    """Train one run with stock lerobot-train (resuming from its last checkpoint after a kill), keeping its
+    `checkpoints` evenly spaced checkpoints and those of its learning curve's `curve` steps, then compute its
     diagnostics on the dataset's last `held_out` demonstrations; returns its train record."""
     run = RunSpec.from_config(run_config)
     root = run_dir(out_dir, run.run_id)
@@ -219,12 +236,11 @@ def train_unit(
     (root / "run.json").write_text(json.dumps(run.config(), indent=2) + "\n")
     output_dir = root / "train"
     steps = run.steps(demo_frames(Path(dataset), run.demos) if run.budget_unit == "frame_epochs" else None)
+    kept = kept_checkpoints(steps, checkpoints, curve)
     resumed_from = resumable_step(output_dir)
     if resumed_from is None:
         shutil.rmtree(output_dir, ignore_errors=True)  # lerobot-train refuses an existing output_dir
-        command = train_command(
-            run, Path(dataset), output_dir, steps, device, save_every(steps, checkpoints), loader_workers
-        )
+        command = train_command(run, Path(dataset), output_dir, steps, device, save_freq(kept), loader_workers)
     else:
         command = resume_command(output_dir)
     start = time.time()
@@ -242,13 +258,17 @@ def train_unit(
             env={**os.environ, "HF_HUB_OFFLINE": "1", **thread_env(threads)},
         )
     saved = saved_checkpoints(output_dir)
-    if done.returncode != 0 or steps not in saved:
+    if done.returncode != 0 or not set(kept) <= set(saved):
         tail = "".join((root / "train.log").read_text().splitlines(keepends=True)[-15:])
         raise RunError(
             f"training of run {run.run_id} ({run.method} on {run.task}) failed with exit code "
             f"{done.returncode}; log {root / 'train.log'}:\n{tail}"
         )
     train_s = round(time.time() - start, 1)
+    for step, model in saved.items():
+        if step not in kept:  # saved only because lerobot-train saves at one spacing
+            shutil.rmtree(model.parent)
+    saved = {step: saved[step] for step in kept}
     return {
         "kind": "train",
         "run_id": run.run_id,

@@ -20,7 +20,7 @@ from lerobot_obsbench.bench.grid import (
     preset_grids,
 )
 from lerobot_obsbench.bench.results import append_result
-from lerobot_obsbench.bench.units import demo_dir, train_command
+from lerobot_obsbench.bench.units import demo_dir, kept_checkpoints, save_freq, train_command
 from lerobot_obsbench.cli import main
 from lerobot_obsbench.envs.base_task import task_spec
 from lerobot_obsbench.envs.perturbations import orbit_eye, parse_perturbation
@@ -700,3 +700,49 @@ def test_dry_run_prices_only_the_demonstrations_still_to_record(tmp_path, capsys
     second = capsys.readouterr().out
     assert "demonstrations to record: 2000 episodes of PickCube-v1 (2000)" in second
     assert _hours("HOURS h on a 2-core CPU", second) < _hours("HOURS h on a 2-core CPU", first)
+
+
+def test_a_learning_curve_evaluates_the_listed_checkpoints_on_the_test_seeds_and_keeps_the_run_ids():
+    """`eval_checkpoints` adds nominal test evaluations of those steps' checkpoints; what a run trains, and so its
+    id, does not change (how often it saves is not part of it)."""
+    plain = parse_grid({**BASE, "steps": 3000, "perturbations": ["light:0.05"]})
+    curve = parse_grid({**BASE, "steps": 3000, "perturbations": ["light:0.05"], "eval_checkpoints": [2000, 1000]})
+    assert [r.run_id for r in curve.expand()] == [r.run_id for r in plain.expand()]
+    run = curve.expand()[0]
+    added = [s for s in curve.evaluations(run) if s not in plain.evaluations(run)]
+    assert [(s.checkpoint, s.split, s.perturbation) for s in added] == [
+        ("step:1000", "test", "none"),
+        ("step:2000", "test", "none"),
+    ]
+    assert all(s.episodes == curve.eval_episodes for s in added)
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"eval_checkpoints": [10]}, r"eval_checkpoints \[10\] are not below the 10 steps"),
+        ({"eval_checkpoints": [5, 5]}, "eval_checkpoints lists 5 more than once"),
+        ({"eval_checkpoints": [0]}, r"eval_checkpoints\[0\] must be a whole number >= 1; got 0"),
+        ({"eval_checkpoints": [2.5]}, r"eval_checkpoints\[0\] must be a whole number >= 1; got 2.5"),
+        ({"steps": None, "frame_epochs": 2, "eval_checkpoints": [5]}, "a frame_epochs budget's steps are known only"),
+    ],
+)
+def test_a_learning_curve_it_cannot_give_is_refused_when_the_grid_loads(changes, message):
+    with pytest.raises(GridError, match=message):
+        parse_grid({k: v for k, v in {**BASE, **changes}.items() if v is not None})
+
+
+@pytest.mark.parametrize(
+    ("steps", "checkpoints", "curve", "kept", "freq"),
+    [
+        (3000, 4, (), [750, 1500, 2250, 3000], 750),  # as before learning curves: one spacing
+        (3000, 1, (1000, 2000), [1000, 2000, 3000], 1000),
+        (3000, 4, (1000,), [750, 1000, 1500, 2250, 3000], 250),
+        (100, 3, (), [34, 68, 100], 34),  # lerobot-train saves the last step whatever the spacing
+        (10, 1, (), [10], 10),
+    ],
+)
+def test_checkpoints_kept_and_the_spacing_that_saves_them(steps, checkpoints, curve, kept, freq):
+    assert kept_checkpoints(steps, checkpoints, curve) == kept
+    assert save_freq(kept) == freq
+    assert all(s % freq == 0 for s in kept[:-1])

@@ -331,3 +331,32 @@ def test_the_same_run_on_the_same_machine_trains_bit_identical_weights(tiny_data
         weights.append(Path(record["checkpoint"], "model.safetensors").read_bytes())
     assert weights[0] == weights[1]
     assert weights[0] != weights[2]
+
+
+def test_a_learning_curve_is_one_run_evaluated_at_its_listed_checkpoints_and_reused_when_run_again(tmp_path):
+    """`eval_checkpoints`: the run keeps those steps' checkpoints (and no other it saved on the way), each is
+    evaluated on the test seeds, and the report draws the curve; running the grid again trains and evaluates
+    nothing; a step listed after the run was trained is reported missing, with how to get it, not retrained."""
+    grid = one_run_grid(
+        tmp_path / "curve.yaml",
+        ("obs_spaces: [rgb]", "obs_spaces: [none]"),
+        ("steps: 3", "steps: 6\neval_checkpoints: [2, 4]"),
+        ("perturbations: [light:0.05]\n", ""),
+    )
+    out = tmp_path / "out"
+    finish("run", str(grid), "--out", str(out))
+    (train,) = by_kind(quiet(out / "results.jsonl"), "train")
+    assert sorted(int(s) for s in train["checkpoints"]) == [2, 4, 6]
+    evals = by_kind(quiet(out / "results.jsonl"), "eval")
+    assert sorted(r["checkpoint"] for r in evals) == ["last", "step:2", "step:4"]
+    assert {r["checkpoint_step"] for r in evals} == {2, 4, 6} and {r["split"] for r in evals} == {"test"}
+    finish("report", str(out / "results.jsonl"))
+    md = (out / "report" / "report.md").read_text()
+    assert "Learning curves" in md and "step 2" in md and "step 6" in md
+    assert (out / "report" / "learning_curves.png").is_file()
+    again = finish("run", str(grid), "--out", str(out))
+    assert "1 already trained, 0 to train" in again and "3 of 3 test evaluations done" in again
+    grid.write_text(grid.read_text().replace("eval_checkpoints: [2, 4]", "eval_checkpoints: [2, 3, 4]"))
+    later = finish("run", str(grid), "--out", str(out))
+    assert "kept no checkpoint at steps [3] of eval_checkpoints" in later and "3 of 3 test evaluations done" in later
+    assert "\ntrained " not in later and len(by_kind(quiet(out / "results.jsonl"), "eval")) == 3

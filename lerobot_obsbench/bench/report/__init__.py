@@ -11,6 +11,7 @@ Beyond the paper, checks that a method uses what it sees:
   blind control's on a task is marked ▲ there;
 - the oracle control (obs_space `state`: the simulator's object poses): with the blind control it brackets every
   seeing space, which is read as the fraction of the oracle's gain over blind it recovers;
+- learning curves: each method's success rate at every checkpoint a grid's `eval_checkpoints` evaluates;
 - per-seed outcomes of every column, and each run's diagnostics (loss curve, held-out open-loop action error,
   objects' pixel size, point tokens on the objects; bench/diagnostics.py);
 - evaluation-only changes (camera moved, light, ...): per-seed agreement with the nominal evaluation of the same
@@ -53,6 +54,7 @@ RESULT_SECTIONS = (
     tables.success_section,
     tables.aggregate_section,
     tables.control_section,
+    tables.curve_section,
     tables.per_seed_section,
     tables.diagnostic_section,
     tables.agreement_section,
@@ -62,6 +64,7 @@ PUBLISHED_SECTIONS = (tables.published_section, tables.side_by_side_section)
 FIGURES = (
     figures.aggregate_figures,
     figures.success_figure,
+    figures.learning_curve_figure,
     figures.loss_figure,
     figures.generalization_figures,
     figures.sample_efficiency_figure,

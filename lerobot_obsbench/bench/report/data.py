@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from functools import cached_property
 
 from lerobot_obsbench.bench.report.comparisons import SeedAggregates, seed_aggregates
-from lerobot_obsbench.bench.report.runs import cells_by_task, demo_counts, demo_series, labelled_runs
+from lerobot_obsbench.bench.report.runs import cells_by_task, curve_cells, demo_counts, demo_series, labelled_runs
 from lerobot_obsbench.bench.report.statistics import Cell, rates
 
 
@@ -47,3 +47,8 @@ class ReportData:
     @cached_property
     def demo_series(self) -> dict[str, list[tuple[float, float]]]:
         return demo_series(self.records)
+
+    @cached_property
+    def curves(self) -> dict[str, dict[str, dict[int, Cell]]]:
+        """{task: {label: {step: Cell}}} of the learning curves (runs evaluated at several checkpoints)."""
+        return curve_cells(self.records)

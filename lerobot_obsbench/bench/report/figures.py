@@ -158,6 +158,28 @@ def success_figure(data: ReportData) -> dict[str, Figure]:
     return {"success_by_task.png": ("Success rate per task", bar_chart(data.cells))}
 
 
+def learning_curve_figure(data: ReportData) -> dict[str, Figure]:
+    """Success rate against training steps, one panel per task, one line per method with its interval band."""
+    if not data.curves:
+        return {}
+    plt = pyplot()
+    tasks = sorted(data.curves)
+    fig, axes = plt.subplots(1, len(tasks), figsize=(4.0 * len(tasks), 3.4), squeeze=False)
+    for ax, task in zip(axes[0], tasks, strict=True):
+        for label, curve in sorted(data.curves[task].items()):
+            steps = list(curve)
+            lows, highs = zip(*(cell.ci95 for cell in curve.values()), strict=True)
+            (line,) = ax.plot(steps, [cell.rate for cell in curve.values()], marker="o", label=label)
+            ax.fill_between(steps, lows, highs, color=line.get_color(), alpha=0.15)
+        ax.set_ylim(0, 1)
+        ax.set_xlabel("training step")
+        ax.set_title(task, fontsize=10)
+    axes[0][0].set_ylabel("success rate (test seeds)")
+    axes[0][-1].legend(fontsize=7)
+    fig.tight_layout()
+    return {"learning_curves.png": ("Learning curves: success against training steps", figure_png(fig))}
+
+
 def loss_figure(data: ReportData) -> dict[str, Figure]:
     """Training loss against step, one line per run."""
     labels = method_labels(data.records)

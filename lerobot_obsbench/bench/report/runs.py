@@ -22,7 +22,8 @@ def run_views(records: list[dict], checkpoint: str = "best") -> list[dict]:
     """One view per trained run from the results store's train and eval records: its config plus
     `evaluations` {perturbation: eval record} of its test evaluations of `checkpoint` — "best" (the
     best-on-validation checkpoint, where the run has one; else its last) or "last". Each view notes which
-    checkpoint it shows under "shown"."""
+    checkpoint it shows under "shown", and holds its learning curve under "curve": {step: nominal eval record} of
+    the grid's `eval_checkpoints` and the last checkpoint (empty without those)."""
     if checkpoint not in CHECKPOINT_CHOICES:
         raise ReportError(f"checkpoint must be one of {CHECKPOINT_CHOICES}; got {checkpoint!r}")
     tests = defaultdict(dict)  # run_id -> checkpoint -> perturbation -> record
@@ -45,9 +46,22 @@ def run_views(records: list[dict], checkpoint: str = "best") -> list[dict]:
                 "shown": shown,
                 "evaluations": tests[r["run_id"]][shown],
                 "diagnostics": r.get("diagnostics", {}),
+                "curve": _curve(tests[r["run_id"]], r.get("train_steps")),
             }
         )
     return views
+
+
+def _curve(tests: dict[str, dict[str, dict]], last_step: int | None) -> dict[int, dict]:
+    """{step: nominal test record} of a run's learning-curve checkpoints ("step:N") and, with them, its last."""
+    curve = {
+        int(checkpoint.removeprefix("step:")): by_perturbation["none"]
+        for checkpoint, by_perturbation in tests.items()
+        if checkpoint.startswith("step:") and "none" in by_perturbation
+    }
+    if curve and last_step is not None and "none" in tests.get("last", {}):
+        curve[int(last_step)] = tests["last"]["none"]
+    return dict(sorted(curve.items()))
 
 
 def method_labels(records: list[dict]) -> dict[str, str]:
@@ -114,6 +128,24 @@ def cells_by_task(
             continue
         runs[r["task"]][labels[r["run_id"]]].append((evaluation["successes"], evaluation["episodes"]))
     return {t: {m: Cell(tuple(c)) for m, c in row.items()} for t, row in runs.items()}
+
+
+def curve_cells(records: list[dict]) -> dict[str, dict[str, dict[int, Cell]]]:
+    """{task: {label: {step: Cell}}} of the runs' learning curves (`run_views`' "curve"), at each task's largest
+    demo count: one Cell per checkpoint step, holding every training seed's episodes at that step."""
+    labels = method_labels(records)
+    most = most_demos(records)
+    found: dict[str, dict[str, dict[int, list]]] = defaultdict(lambda: defaultdict(lambda: defaultdict(list)))
+    for r in records:
+        if r["config"]["demos"] == most[r["task"]]:
+            for step, evaluation in r.get("curve", {}).items():
+                found[r["task"]][labels[r["run_id"]]][step].append((evaluation["successes"], evaluation["episodes"]))
+    return {
+        task: {
+            label: {step: Cell(tuple(runs)) for step, runs in sorted(by_step.items())} for label, by_step in row.items()
+        }
+        for task, row in found.items()
+    }
 
 
 def perturbation_series(records: list[dict]) -> dict[str, dict[str, list[tuple[float, float]]]]:

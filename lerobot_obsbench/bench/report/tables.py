@@ -199,6 +199,37 @@ def control_section(data: ReportData) -> Section | None:
     )
 
 
+def curve_section(data: ReportData) -> Section | None:
+    """Each method's success rate per task at every evaluated checkpoint: its learning curve over training steps."""
+    if not data.curves:
+        return None
+    steps = sorted({step for row in data.curves.values() for curve in row.values() for step in curve})
+    rows = []
+    for task, row in sorted(data.curves.items()):
+        for label, curve in sorted(row.items()):
+            entries = []
+            for step in steps:
+                cell = curve.get(step)
+                if cell is None:
+                    entries.append(("—", None))
+                    continue
+                lo, hi = cell.ci95
+                entries.append((f"{cell.rate:.2f} [{lo:.2f}, {hi:.2f}] ({cell.seeds} seeds)", None))
+            rows.append((task, [(label, None), *entries]))
+    return Section(
+        "Learning curves: success rate on the test seeds at each evaluated checkpoint (training steps), nominal "
+        "scene, training seeds' episodes pooled (95% interval over training seeds and episodes)",
+        ["task", "method", *(f"step {step}" for step in steps)],
+        rows,
+        checks={
+            "curves": {
+                task: {label: {str(step): cell.rate for step, cell in curve.items()} for label, curve in row.items()}
+                for task, row in data.curves.items()
+            }
+        },
+    )
+
+
 def per_seed_section(data: ReportData) -> Section:
     """Each run's nominal test episodes, seed by seed (1 = success), with its training seed."""
     rows = []
