@@ -5,6 +5,7 @@ handler, its own `main`. `lerobot_obsbench.cli` dispatches to them; nothing else
 COMMANDS = (
     "doctor",
     "demos",
+    "replay",
     "import_h5",
     "import_rlbench",
     "eval",

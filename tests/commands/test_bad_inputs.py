@@ -463,6 +463,13 @@ def refine_one_camera(root: Path) -> list[str]:
     return ["refine-cameras", "--playback", str(root / "camera0.bag")]
 
 
+def replay_a_dataset_not_recorded_by_demos(root: Path) -> list[str]:
+    out = root / "recording"
+    (out / "meta").mkdir(parents=True)
+    (out / "meta" / "info.json").write_text('{"robot_type": "koch"}\n')
+    return ["replay", "--root", str(out)]
+
+
 def encoders_of_a_typo(root: Path) -> list[str]:
     return ["encoders", "--obs-space", "pointclould"]
 
@@ -549,6 +556,7 @@ ROWS = [
     (push_a_folder_that_is_no_run, ["obsbench push: error:", "is neither a grid run"]),
     (view_without_a_dataset_or_camera, ["obsbench view: error: give --root DATASET, or --serial SERIAL"]),
     (refine_one_camera, ["obsbench refine-cameras: error: give two or more cameras"]),
+    (replay_a_dataset_not_recorded_by_demos, ["obsbench replay: error:", "no obsbench_demos.json", "obsbench demos"]),
     (encoders_of_a_typo, ["argument --obs-space: invalid choice: 'pointclould'"]),
     (preset_of_a_typo, ["argument --preset: invalid choice: 'papper'"]),
     *bad_inputs_validate.ROWS,
