@@ -129,10 +129,6 @@ class WaypointExpert:
     def matrix_of(self, pose) -> np.ndarray:
         return pose_matrix(first(pose.p), quat_to_matrix(first(pose.q)))
 
-    def aligned(self, actor) -> Callable:
-        """Rotation target: top-down, yaw aligned with `actor`'s faces (closest of the 4 choices)."""
-        return lambda s: top_down(grasp_yaw(s.tcp()[1], s.pose_of(actor)[1]))
-
 
 def above(p: np.ndarray, dz: float) -> np.ndarray:
     return p + np.array([0.0, 0.0, dz])

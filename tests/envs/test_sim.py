@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -848,3 +849,45 @@ def test_an_often_failing_expert_screens_seeds_without_cameras():
         recorder.close()
         plain.close()
     assert True in outcomes and False in outcomes, f"seeds 100000..100002 should hold both outcomes: {outcomes}"
+
+
+@pytest.mark.parametrize(
+    "task", [name for name, spec in TASKS.items() if spec.expert is not None and spec.asset_group is None]
+)
+def test_each_tasks_episode_budget_holds_twice_its_experts_mean_episode(task):
+    """`Task.max_steps` (the budget of evaluation and of recording) is at least twice the mean length of the
+    scripted expert's successful episodes, measured here on demonstration seeds with room to spare (three times
+    the budget), and at least the longest of them: a cloned policy is slower than its expert."""
+    spec = task_spec(task)
+    env = ObsBenchEnv(task, cameras=(), image_size=32, episode_length=3 * spec.max_steps)
+    lengths = []
+    for seed in range(100_000, 100_008):
+        env.reset(seed=seed)
+        expert, steps, info = spec.make_expert(env), 0, {"is_success": False}
+        while not info["is_success"] and (action := expert.act()) is not None and steps < 3 * spec.max_steps:
+            info = env.step(action)[4]
+            steps += 1
+        if info["is_success"]:
+            lengths.append(steps)
+    env.close()
+    assert lengths, f"{task}: the expert succeeded on none of 8 seeds"
+    assert spec.max_steps >= 2 * np.mean(lengths) and spec.max_steps >= max(lengths), (spec.max_steps, lengths)
+
+
+def test_replay_reproduces_every_recorded_episode_and_names_one_that_does_not(demos, tmp_path, capsys):
+    """The recorded actions replayed open-loop from the recorded seeds succeed at their last step; an episode whose
+    seed no longer matches its actions is named and the command exits 1."""
+    from lerobot_obsbench.cli import main
+
+    assert main(["replay", "--root", str(demos)]) == 0
+    assert "PickCube-v1: 5 of 5 episodes replayed open-loop succeed at their last recorded action" in (
+        capsys.readouterr().out
+    )
+    shifted = tmp_path / "shifted"
+    shutil.copytree(demos, shifted)
+    sidecar = json.loads((shifted / "obsbench_demos.json").read_text())
+    sidecar["seeds"] = sidecar["seeds"][1:] + sidecar["seeds"][:1]  # every episode paired with another's seed
+    (shifted / "obsbench_demos.json").write_text(json.dumps(sidecar))
+    assert main(["replay", "--root", str(shifted), "--episodes", "2"]) == 1
+    out = capsys.readouterr().out
+    assert "episode 0 (seed" in out and "of 2 episodes replayed" in out

@@ -52,7 +52,7 @@ class LiftPegUprightExpert(WaypointExpert):
 @register_task
 class LiftPegUpright(Task):
     name = "LiftPegUpright-v1"
-    max_steps = 50
+    max_steps = 70  # ManiSkill's: 50
     description = "lift the lying peg into an upright pose"
     expert = LiftPegUprightExpert
     privileged_actors = ("peg",)

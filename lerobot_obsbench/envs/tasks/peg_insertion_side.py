@@ -43,7 +43,7 @@ class PegInsertionSideExpert(InsertionExpert):
 @register_task
 class PegInsertionSide(Task):
     name = "PegInsertionSide-v1"
-    max_steps = 100
+    max_steps = 120  # ManiSkill's: 100
     description = "insert the peg into the hole of the box from the side"
     grasped = PEG
     privileged_actors = (PEG, "box")

@@ -10,8 +10,9 @@ xy in [-0.1, 0.1]^2 and its height 0..0.3 m above the cube's.
 Sub-success: `reach` (the gripper's centre within 1.5 cm of the cube's), `grasp`, `lift` (held 2 cm above where it
 lay) and `place` (the cube within 2.5 cm of the goal, the robot moving or not).
 
-**Expert:** top-down grasp aligned with the cube's faces, carry to the goal, hold still.
-Its success rate: docs/simulation.md#tasks.
+**Expert:** grasp the cube from above without turning the gripper (its fingers square the cube up as they close;
+its rotation actions are all zero), carry it to the goal, hold still. Its success rate and why it does not turn:
+docs/simulation.md#tasks.
 
 **OBSBench's camera and crop box:** ManiSkill's camera shows the cube as ~6 pixels of a 64² frame; the task camera
 looks at the spawn square from closer, and point clouds are cropped to the square and the air above it up to the
@@ -28,12 +29,11 @@ from lerobot_obsbench.envs.experts import CLOSED, OPEN, Phase, WaypointExpert, a
 class PickCubeExpert(WaypointExpert):
     def plan(self):
         cube = lambda s: s.pose_of(s.env.cube)[0]
-        yaw = self.aligned(self.env.cube)
         goal = lambda s: first(s.env.goal_site.pose.p)
         return [
-            Phase("pre-grasp", lambda s: above(cube(s), 0.05), OPEN, yaw),
-            Phase("descend", cube, OPEN, yaw, tol=0.005),
-            Phase("grasp", cube, CLOSED, yaw, tol=1.0, min_steps=4, max_steps=4),
+            Phase("pre-grasp", lambda s: above(cube(s), 0.05), OPEN),
+            Phase("descend", cube, OPEN, tol=0.005),
+            Phase("grasp", cube, CLOSED, tol=1.0, min_steps=4, max_steps=4),
             Phase("to goal", goal, CLOSED, tol=0.005, max_steps=60),
             Phase("hold", goal, CLOSED, tol=1.0, min_steps=30, max_steps=30),
         ]
