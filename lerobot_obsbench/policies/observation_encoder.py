@@ -79,6 +79,9 @@ class ObservationEncoder(nn.Module):
         # the keys the adapter reads (the blind space reads the state, for the batch size only)
         reads_state = self.adapter.needs_ee_pose or config.obs_space in BLIND_SPACES
         self.input_keys = config.observation_keys() + ([STATE_KEY] if reads_state else [])
+        # the encoder compiled for training (`compile_encoder`): the same parameters, held outside the module tree
+        # so that the state dict and checkpoints stay those of the eager encoder
+        self._compiled = (torch.compile(self.encoder),) if config.compile_encoder else None
 
     def forward(self, batch: dict[str, Tensor]) -> Tensor | tuple[Tensor, Tensor]:
         ee_pose = None
@@ -86,4 +89,5 @@ class ObservationEncoder(nn.Module):
             pose = self.state(batch[STATE_KEY])[..., -EE_POSE_SIZE:]
             ee_pose = geometry.pose_to_matrix(pose[..., :3], pose[..., 3:])
         inputs = self.adapter(batch, ee_pose=ee_pose)
-        return self.encoder(inputs if self.privileged is None else self.privileged(inputs))
+        encoder = self._compiled[0] if self._compiled is not None and self.training else self.encoder
+        return encoder(inputs if self.privileged is None else self.privileged(inputs))

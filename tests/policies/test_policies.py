@@ -186,3 +186,31 @@ def test_policy_env_compatibility_names_each_mismatch(tiny_dataset):
     assert "trained on 40x40 frames" in message and "--env.image_size=40" in message
     assert "observation.state of size 15, the env gives 16" in message
     assert "7-D actions" in message and "takes 8" in message
+
+
+def test_a_compiled_encoder_trains_the_same_model_and_acts_eagerly(tiny_dataset, tmp_path):
+    """`compile_encoder`: training runs the encoder through torch.compile, with the eager encoder's parameters (the
+    same loss and gradients to rounding, the same state dict); evaluation runs the eager encoder."""
+    setups = {
+        compiled: training_setup("obs_act", "rgb", tiny_dataset, encoder="spatial_softmax", compile_encoder=compiled)
+        for compiled in (False, True)
+    }
+    eager, pre, _, dataset = setups[False]
+    compiled = setups[True][0]
+    compiled.load_state_dict(eager.state_dict())
+    assert set(compiled.state_dict()) == set(eager.state_dict())
+    batch = first_batch(dataset, pre, batch_size=4)
+    losses, grads = {}, {}
+    for name, policy in (("eager", eager), ("compiled", compiled)):
+        policy.train()
+        torch.manual_seed(0)  # dropout
+        loss, _ = policy.forward(dict(batch))
+        loss.backward()
+        losses[name] = loss.item()
+        grads[name] = policy.model.observation.encoder.backbone[0].weight.grad.clone()
+    assert losses["compiled"] == pytest.approx(losses["eager"], rel=1e-4)
+    assert torch.allclose(grads["compiled"], grads["eager"], rtol=1e-3, atol=1e-6)
+    compiled.eval()
+    assert compiled.model.observation._compiled is not None and not compiled.model.observation.training
+    compiled.save_pretrained(tmp_path)
+    assert set(load_file(tmp_path / "model.safetensors")) == set(eager.state_dict())
