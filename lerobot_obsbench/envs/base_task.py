@@ -70,6 +70,23 @@ def first(value) -> np.ndarray:
     return to_numpy(value).reshape(-1)
 
 
+def spawn_cube_and_target(ms_env, half_size: tuple[float, float]) -> None:
+    """Move each env's `obj` to an xy drawn in [-half_size, half_size] (one x, then one y, from its episode
+    generator: what a single env with that seed draws) and its `goal_region` with it, keeping their offset: the wide
+    variants of ManiSkill's push and pull tasks."""
+    from mani_skill.utils.structs import Pose
+
+    xs, ys = (ms_env._batched_episode_rng.uniform(-h, h) for h in half_size)
+    cube, goal = to_numpy(ms_env.obj.pose.p), to_numpy(ms_env.goal_region.pose.p)
+    offset = goal - cube
+    ms_env.obj.set_pose(Pose.create_from_pq(p=np.stack([xs, ys, cube[:, 2]], 1), q=ms_env.obj.pose.q))
+    ms_env.goal_region.set_pose(
+        Pose.create_from_pq(
+            p=np.stack([xs + offset[:, 0], ys + offset[:, 1], goal[:, 2]], 1), q=ms_env.goal_region.pose.q
+        )
+    )
+
+
 class Task:
     """One OBSBench task on ManiSkill3. Subclasses set the class attributes and document the task."""
 

@@ -10,6 +10,9 @@ half-length above the table.
 **Expert:** pinch the lying peg lightly near one end and lift that end: the peg swings about the finger axis
 until it hangs upright below the fingers; lower it onto the table and let go (turning a firmly grasped peg by
 90 degrees instead stalls near the Panda's wrist limit). Its success rate: docs/simulation.md#tasks.
+
+Its camera looks down at the region the lying peg can cover (ManiSkill's sees it from the robot's side); point
+clouds are cropped to the box the peg lies and stands in.
 """
 
 from __future__ import annotations
@@ -57,3 +60,7 @@ class LiftPegUpright(Task):
     expert = LiftPegUprightExpert
     privileged_actors = ("peg",)
     objects = {"peg": 0.125}  # 12 cm half-length peg
+    # looking down from in front of the table at the region the lying peg can cover and the height it stands to
+    camera = ((0.45, 0.0, 0.55), (0.0, 0.0, 0.1), 1.0)
+    # the lying peg anywhere in its spawn square and standing upright, from 5 mm above the table (drops it)
+    workspace = (-0.3, 0.3, -0.3, 0.3, 0.005, 0.35)

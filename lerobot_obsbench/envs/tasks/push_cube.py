@@ -24,7 +24,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from lerobot_obsbench.envs.base_task import CUBE_HALF_SIZE, Task, bounding_radius, first, register_task, to_numpy
+from lerobot_obsbench.envs.base_task import (
+    CUBE_HALF_SIZE,
+    Task,
+    bounding_radius,
+    first,
+    register_task,
+    spawn_cube_and_target,
+)
 from lerobot_obsbench.envs.experts import CLOSED, Phase, WaypointExpert, above
 
 
@@ -70,17 +77,5 @@ class PushCubeWide(PushCube):
     workspace = (-0.2, 0.45, -0.35, 0.35, 0.005, 0.1)
 
     def initialize(self, ms_env) -> bool:
-        from mani_skill.utils.structs import Pose
-
-        # one x, then one y, from each env's episode generator (what a single env with that seed draws)
-        xs, ys = (ms_env._batched_episode_rng.uniform(-h, h) for h in self.spawn_half_size)
-        cube = to_numpy(ms_env.obj.pose.p)
-        goal = to_numpy(ms_env.goal_region.pose.p)
-        offset = goal - cube  # the target keeps its place relative to the cube
-        ms_env.obj.set_pose(Pose.create_from_pq(p=np.stack([xs, ys, cube[:, 2]], 1), q=ms_env.obj.pose.q))
-        ms_env.goal_region.set_pose(
-            Pose.create_from_pq(
-                p=np.stack([xs + offset[:, 0], ys + offset[:, 1], goal[:, 2]], 1), q=ms_env.goal_region.pose.q
-            )
-        )
+        spawn_cube_and_target(ms_env, self.spawn_half_size)
         return True
