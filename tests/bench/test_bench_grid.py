@@ -670,6 +670,25 @@ def test_cpu_suite_schedules_every_task_with_both_controls_and_fits_three_hours(
     assert _hours("with 2 local workers: ~HOURS h of wall time", text) <= 3.0
 
 
+def test_cpu_ranking_schedules_four_kinds_of_task_with_curves_and_fits_six_hours(capsys):
+    grid = load_grid("cpu-ranking")
+    runs = grid.expand()
+    tasks = ["PushCubeWide-v1", "PullCubeWide-v1", "PickCube-v1", "LiftPegUpright-v1"]
+    spaces = ("none", "state", "rgb", "pointcloud")
+    assert grid.tasks == tasks
+    assert sorted((r.task, r.obs_space, r.seed) for r in runs) == sorted(
+        (t, s, seed) for t in tasks for s in spaces for seed in (1000, 1001, 1002)
+    )
+    assert {(r.budget_unit, r.budget) for r in runs} == {("steps", 10000)} and grid.eval_checkpoints == [1000, 3000]
+    for run in runs:  # each task's own crop box reaches its point-cloud runs
+        workspace = dict(run.policy_overrides).get("workspace")
+        assert workspace == (list(task_spec(run.task).workspace) if run.obs_space == "pointcloud" else None)
+    assert main(["run", "cpu-ranking", "--dry-run", "--out", "/nonexistent/out", "--workers", "2"]) == 0
+    text = capsys.readouterr().out
+    assert "48 runs, 0 already trained, 48 to train; 0 of 144 test evaluations done" in text  # 3 curve points
+    assert _hours("with 2 local workers: ~HOURS h of wall time", text) <= 6.0
+
+
 def test_gpu_day_fits_one_gpu_day_with_the_papers_encoders(capsys):
     runs = load_grid("gpu-day").expand()
     assert {r.preset for r in runs} == {"paper"}
@@ -680,7 +699,7 @@ def test_gpu_day_fits_one_gpu_day_with_the_papers_encoders(capsys):
         ("rgbd", "resnet50"),
         ("pointcloud", "pointnet"),
     }
-    assert {r.task for r in runs} == set(load_grid("cpu-suite").tasks)
+    assert {r.task for r in runs} == {"StackCube-v1", "PegInsertionSide-v1"}  # what the CPU's budget cannot learn
     assert main(["run", "gpu-day", "--dry-run", "--out", "/nonexistent/out", "--device", "cuda"]) == 0
     text = capsys.readouterr().out
     assert 0 < _hours("HOURS h on one H200 GPU", text) <= 24.0
