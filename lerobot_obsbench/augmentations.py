@@ -118,6 +118,19 @@ def parse_augment(recipe: str, obs_space: str) -> tuple[str, ...]:
     return names
 
 
+# The order of a normalised recipe's names by kind. The adapter applies each kind at a point of its own (colour
+# before normalisation, images after, points before the crop box), so only the order within a kind changes what
+# trains; images before colour is how the grids' recipes are written (random_shift+colour_jitter), so their ids stay.
+RECIPE_KIND_ORDER = ("image", "colour", "points")
+
+
+def normalised_recipe(recipe: str, space: str) -> str:
+    """A recipe as runs name it: its names stripped of spaces and ordered by kind (RECIPE_KIND_ORDER), in the order
+    written within a kind; "" for none. AugmentationError when a name does not exist or apply to `space`."""
+    names = parse_augment(recipe.strip(), space)
+    return "+".join(sorted(names, key=lambda n: RECIPE_KIND_ORDER.index(augmentation_info(n).kind)))
+
+
 class Augmenter(nn.Module):
     """A recipe's transforms, applied by kind while training (`random_crop` also at test: its centre crop)."""
 

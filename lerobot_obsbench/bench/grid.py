@@ -421,25 +421,10 @@ def _check_spaces_listed(mapping: dict, spaces: list[str], field_name: str, name
         raise GridError(f"{name}: {field_name} names spaces {extra} that are not in obs_spaces {spaces}")
 
 
-# The order of a normalised recipe's names by kind. The adapter applies each kind at a point of its own (colour
-# before normalisation, images after, points before the crop box), so only the order within a kind changes what
-# trains; images before colour is how the grids' recipes are written (random_shift+colour_jitter), so their ids stay.
-RECIPE_KIND_ORDER = ("image", "colour", "points")
-
-
-def normalised_recipe(recipe: str, space: str) -> str:
-    """A recipe as runs name it: its names stripped of spaces and ordered by kind (RECIPE_KIND_ORDER), in the order
-    written within a kind; "" for none. AugmentationError when a name does not exist or apply to `space`."""
-    from lerobot_obsbench.augmentations import augmentation_info, parse_augment
-
-    names = parse_augment(recipe.strip(), space)
-    return "+".join(sorted(names, key=lambda n: RECIPE_KIND_ORDER.index(augmentation_info(n).kind)))
-
-
 def _resolve_augmentations(spec, spaces: list[str], name: str) -> dict[str, list[str]]:
     """`augmentations`: a mapping space -> recipes (`--policy.augment` values, "" or null for none), each recipe
     checked against its space and normalised, so one recipe written two ways is refused as listed twice."""
-    from lerobot_obsbench.augmentations import AugmentationError
+    from lerobot_obsbench.augmentations import AugmentationError, normalised_recipe
 
     if spec is None:
         return {}
