@@ -10,6 +10,8 @@ stands for elided arguments (such a line is checked up to it), `NAME="..."` defi
 
 from __future__ import annotations
 
+import contextlib
+import io
 import re
 import shlex
 from pathlib import Path
@@ -56,12 +58,13 @@ def _optional_parts(text: str) -> str:
 
 
 def _preset_output(match: re.Match) -> str:
-    """What `$(obsbench preset ...)` prints: the preset's --policy.* arguments."""
-    from lerobot_obsbench.cli import build_parser
-    from lerobot_obsbench.presets import preset_args
+    """What `$(obsbench preset ...)` prints: the command itself, run in this process."""
+    from lerobot_obsbench.cli import main
 
-    args = build_parser().parse_args(shlex.split(match.group(1)))
-    return " ".join(preset_args(args.preset, args.policy, args.obs_space, args.encoder))
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert main(shlex.split(match.group(1))) == 0, match.group(0)
+    return printed.getvalue().strip()
 
 
 def shell_blocks(text: str) -> list[str]:
