@@ -124,6 +124,14 @@ def test_readme_links_every_docs_page():
     assert not missing, f"README's Documentation list does not link {missing}"
 
 
+def test_readme_names_every_env_type():
+    from lerobot_obsbench.envs.configuration import NAMED_ENVS
+
+    readme = (ROOT / "README.md").read_text()
+    missing = sorted(name for name in NAMED_ENVS if f"`{name}`" not in readme)
+    assert not missing, f"README's list of env types leaves out {missing}"
+
+
 def _anchors(page: Path) -> set[str]:
     """GitHub's anchors of a Markdown page's headings (code blocks left out)."""
     text = re.sub(r"^\s*```.*?^\s*```", "", page.read_text(), flags=re.S | re.M)
