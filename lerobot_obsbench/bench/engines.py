@@ -27,6 +27,8 @@ class LocalEngine:
 
     def __init__(self, workers: int = 1):
         self.workers = max(1, workers)
+        # units handed to the pool at once: one per worker, so the driver chooses what runs next
+        self.slots = self.workers
         self.pool = cf.ProcessPoolExecutor(
             self.workers, mp_context=multiprocessing.get_context("spawn"), initializer=_worker_start
         )
@@ -66,6 +68,7 @@ class RayEngine:
     every node (a shared filesystem, as on Slurm clusters)."""
 
     name = "ray"
+    slots = None  # every ready unit goes to the cluster, which places each by the resources it asks for
 
     def __init__(self, address: str | None = None, **init_kwargs):
         try:

@@ -4,6 +4,8 @@ input its unit needs. Jobs are picklable, so the local pool and Ray take the sam
 
 from __future__ import annotations
 
+import heapq
+import itertools
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -135,6 +137,30 @@ class EvalJob:
 
 
 Job = DemoJob | TrainJob | EvalJob
+
+
+class WorkQueue:
+    """Units ready to run, waiting for a worker: demonstrations first (trainings wait on them), then evaluations (a
+    trained run's results are in before another run trains, so a grid stopped early has whole results for what it
+    trained), then trainings; in the order they became ready within each kind."""
+
+    ORDER = (DemoJob, EvalJob, TrainJob)
+
+    def __init__(self):
+        self._heap: list[tuple[int, int, Job]] = []
+        self._arrivals = itertools.count()
+
+    def push(self, job: Job) -> None:
+        heapq.heappush(self._heap, (self.ORDER.index(type(job)), next(self._arrivals), job))
+
+    def pop(self) -> Job:
+        return heapq.heappop(self._heap)[2]
+
+    def __len__(self) -> int:
+        return len(self._heap)
+
+    def __iter__(self):
+        return (job for _, _, job in sorted(self._heap))
 
 
 def run_job(job: Job) -> dict:

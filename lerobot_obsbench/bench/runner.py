@@ -28,7 +28,7 @@ from lerobot_obsbench.bench.cost import (
 )
 from lerobot_obsbench.bench.engines import make_engine
 from lerobot_obsbench.bench.grid import BUDGET_UNITS, EvalSpec, Grid, GridError, RunSpec
-from lerobot_obsbench.bench.jobs import DemoJob, EvalJob, Job, TrainJob
+from lerobot_obsbench.bench.jobs import DemoJob, EvalJob, Job, TrainJob, WorkQueue
 from lerobot_obsbench.bench.results import RESULTS_FILE, append_result, by_kind, read_results
 from lerobot_obsbench.bench.units import demo_dir, demos_recorded, evaluation_progress, run_dir, training_progress
 from lerobot_obsbench.envs.base_task import TASKS, asset_help, missing_assets, task_spec
@@ -208,7 +208,8 @@ class Driver:
         self.grid, self.work, self.out, self.engine = grid, work, out, engine
         self.device, self.loader_workers, self.threads, self.echo = device, loader_workers, threads, echo
         self.results = out / RESULTS_FILE
-        self.pending: dict[object, Job] = {}  # engine handle -> job
+        self.pending: dict[object, Job] = {}  # engine handle -> job, running (or in the engine's own queue)
+        self.queue = WorkQueue()  # ready units not yet given to the engine
         self.copies: dict[str, list[dict]] = {}  # eval_id of a "last" eval -> "best" records waiting to copy it
         self.failures = 0
         self.started = time.time()
@@ -220,7 +221,15 @@ class Driver:
     # ---- scheduling ----------------------------------------------------------------------------------------
 
     def submit(self, job: Job) -> None:
-        self.pending[self.engine.submit(job)] = job
+        self.queue.push(job)
+        self.dispatch()
+
+    def dispatch(self) -> None:
+        """Hand the engine the queue's first units while it has free slots (all of them: an engine without)."""
+        slots = getattr(self.engine, "slots", None)
+        while self.queue and (slots is None or len(self.pending) < slots):
+            job = self.queue.pop()
+            self.pending[self.engine.submit(job)] = job
 
     def start(self) -> None:
         for key, (run, episodes) in self.work.demos.items():
@@ -367,6 +376,7 @@ class Driver:
                     self.failed(job, err)
                     continue
                 self.finished(job, outcome)
+            self.dispatch()
             if time.time() - last_progress >= every and self.pending:
                 self.progress()
                 last_progress = time.time()
@@ -375,7 +385,7 @@ class Driver:
 
     def progress(self) -> None:
         lines, remaining = [], 0.0
-        for job in self.pending.values():
+        for job in [*self.pending.values(), *self.queue]:
             match job:
                 case TrainJob():
                     left, line = self.training_left(job)
@@ -389,7 +399,7 @@ class Driver:
         workers = getattr(self.engine, "workers", 1)
         elapsed = (time.time() - self.started) / 60
         self.echo(
-            f"[{elapsed:.1f} min] {len(self.pending)} units queued or running; grid ETA ~"
+            f"[{elapsed:.1f} min] {len(self.pending) + len(self.queue)} units queued or running; grid ETA ~"
             f"{math.ceil(remaining / max(workers, 1) / 60)} min (later units not counted until ready)"
         )
         for line in lines:
