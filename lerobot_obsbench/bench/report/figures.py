@@ -159,23 +159,28 @@ def success_figure(data: ReportData) -> dict[str, Figure]:
 
 
 def learning_curve_figure(data: ReportData) -> dict[str, Figure]:
-    """Success rate against training steps, one panel per task, one line per method with its interval band."""
+    """Success rate against training steps, one panel per task, one line per method with its interval band; a
+    method keeps its colour in every panel and the legend names every method."""
     if not data.curves:
         return {}
     plt = pyplot()
     tasks = sorted(data.curves)
+    methods = sorted({label for curves in data.curves.values() for label in curves})
+    palette = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    colour = {label: palette[i % len(palette)] for i, label in enumerate(methods)}
     fig, axes = plt.subplots(1, len(tasks), figsize=(4.0 * len(tasks), 3.4), squeeze=False)
     for ax, task in zip(axes[0], tasks, strict=True):
         for label, curve in sorted(data.curves[task].items()):
             steps = list(curve)
             lows, highs = zip(*(cell.ci95 for cell in curve.values()), strict=True)
-            (line,) = ax.plot(steps, [cell.rate for cell in curve.values()], marker="o", label=label)
-            ax.fill_between(steps, lows, highs, color=line.get_color(), alpha=0.15)
+            ax.plot(steps, [cell.rate for cell in curve.values()], marker="o", color=colour[label])
+            ax.fill_between(steps, lows, highs, color=colour[label], alpha=0.15)
         ax.set_ylim(0, 1)
         ax.set_xlabel("training step")
         ax.set_title(task, fontsize=10)
     axes[0][0].set_ylabel("success rate (test seeds)")
-    axes[0][-1].legend(fontsize=7)
+    handles = [plt.Line2D([], [], color=colour[label], marker="o", label=label) for label in methods]
+    axes[0][-1].legend(handles=handles, fontsize=7)
     fig.tight_layout()
     return {"learning_curves.png": ("Learning curves: success against training steps", figure_png(fig))}
 
