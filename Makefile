@@ -35,15 +35,16 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check $(CODE)
 	$(BIN)/lint-imports --no-logo
 
-# README test command: the code checks, then the whole suite, fast tests first, then the slow end-to-end ones in two
-# processes, a test file each (its module fixtures stay in one process): they spend much of their time starting
-# subprocesses and simulators, so two at a time finish sooner even on 2 cores (times: docs/performance.md).
+# README test command: the code checks, then the whole suite, fast tests first, then the slow end-to-end ones, each
+# in two processes with a test file each (its module fixtures stay in one process): the tests run one thread of
+# Python apiece and the slow ones spend much of their time starting subprocesses and simulators, so two at a time
+# finish sooner on 2 cores (times: docs/performance.md).
 test: lint
-	$(BIN)/python -m pytest -m "not slow" -q
+	$(BIN)/python -m pytest -m "not slow" -q -n 2 --dist loadfile
 	$(BIN)/python -m pytest -m slow -q -n 2 --dist loadfile --durations=10
 
 test-fast: $(STAMP)
-	$(BIN)/python -m pytest -m "not slow" -q
+	$(BIN)/python -m pytest -m "not slow" -q -n 2 --dist loadfile
 
 # Speed benchmarks (write JSON under benchmarks/results/).
 bench: $(STAMP)
