@@ -17,11 +17,11 @@ from lerobot_obsbench import dataset_reads, patches
 
 if patches.apply():
     dataset_reads.install()
-
 from lerobot_obsbench import encoders, envs, policies, robots  # (registration side effects)
 from lerobot_obsbench.encoders import available_encoders, make_encoder
 from lerobot_obsbench.spaces import AdapterConfig, ObservationAdapter
 
+dataset_reads.announce()  # shown where logging is set up before plugins are imported (lerobot-eval)
 __version__ = version("lerobot_policy_obsbench")  # one source: pyproject.toml (the distribution name)
 __all__ = [
     "AdapterConfig",

@@ -30,6 +30,7 @@ import logging
 import os
 import time
 from collections.abc import Callable
+from importlib import metadata
 
 import av
 import numpy as np
@@ -40,9 +41,10 @@ from lerobot.datasets import factory
 from lerobot.datasets.dataset_reader import DatasetReader
 from lerobot.datasets.depth_utils import MM_PER_METRE
 
+from lerobot_obsbench import patches
 from lerobot_obsbench.errors import ConfigError
 from lerobot_obsbench.numeric import number_from_environment
-from lerobot_obsbench.patches import LeRobotTorchFormatter
+from lerobot_obsbench.patches import LeRobotTorchFormatter, Patch
 from lerobot_obsbench.schema import SchemaError
 
 logger = logging.getLogger(__name__)
@@ -64,6 +66,45 @@ _STOCK = {
     "load_and_activate": DatasetReader.load_and_activate,
     "get_item": DatasetReader.get_item,
 }
+
+
+READS_FIX = "the plugin's policies read only their features"
+READS_RETIRE = "a reader that serves only the features a policy declares, decoded once"
+patches.register(
+    Patch(factory, "resolve_delta_timestamps", READS_FIX, READS_RETIRE),
+    *(
+        Patch(DatasetReader, name, READS_FIX, READS_RETIRE)
+        for name in ("__init__", "try_load", "load_and_activate", "get_item")
+    ),
+)
+ARCHITECTURE_TABLE = "docs/architecture.md#lerobot-functions-the-plugin-replaces"
+_announced: list[str] = []  # the start-up line, once logged (once per process)
+
+
+def routes_line() -> str:
+    """The start-up line: what the plugin routes in this process and where the list of replaced functions is."""
+    in_place = [patch for patch in patches.PATCHES if patch.in_place()]
+    fixes = list(dict.fromkeys(patch.fix for patch in in_place))
+    reader = os.environ.get(READER_ENV, "memory")  # unchecked here: the reader refuses a bad value, naming it
+    if READS_FIX in fixes:
+        reads = f"{READS_FIX} (reader `{reader}`, {READER_ENV})"
+        fixes[fixes.index(READS_FIX)] = (
+            reads if reader != "stock" else f"datasets read by LeRobot's reader ({READER_ENV}=stock)"
+        )
+    return (
+        f"lerobot_obsbench patches {len(in_place)} functions on LeRobot {metadata.version('lerobot')}'s path: "
+        f"{'; '.join(fixes)} "
+        f"(every one: {ARCHITECTURE_TABLE})"
+    )
+
+
+def announce() -> None:
+    """Log the start-up line the first time logging shows it: at import when logging is already set up
+    (lerobot-eval), else when lerobot-train first resolves a dataset's query (it sets logging up after importing
+    plugins)."""
+    if not _announced and logger.isEnabledFor(logging.INFO) and logger.hasHandlers():
+        _announced.append(routes_line())
+        logger.info(_announced[0])
 
 
 class PolicyQuery(dict):
@@ -88,6 +129,7 @@ def memory_budget_bytes() -> int:
 
 def resolve_delta_timestamps(cfg, ds_meta):
     """LeRobot's resolver; for a config that declares its reads, the result tagged with them."""
+    announce()
     delta_timestamps = _STOCK["resolve"](cfg, ds_meta)
     declare: Callable | None = getattr(cfg, "dataset_reads", None)
     if declare is None or reader_choice() == "stock":

@@ -32,7 +32,9 @@ Fixes 1 and 3 replace LeRobot functions for every process that imports the plugi
 into every `lerobot-*` command), so `apply()` patches only the LeRobot version it was written and tested for
 (`LEROBOT_VERSION`); on any other it warns and leaves LeRobot as it is.
 
-`stock_loading()` restores LeRobot's behaviour for the equivalence test and the loading benchmark.
+`stock_loading()` restores LeRobot's behaviour for the equivalence test and the loading benchmark. Every replaced
+attribute is a `Patch` record in `PATCHES` (`dataset_reads` adds its own): the start-up line that lerobot-train and
+lerobot-eval log, and docs/architecture.md's table, are written from them.
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ import contextlib
 import functools
 import logging
 import os
+from dataclasses import dataclass, field
 from importlib import metadata
 
 import datasets
@@ -50,7 +53,7 @@ import PIL.Image
 import torch
 from datasets.formatting import _register_formatter
 from datasets.formatting.torch_formatter import TorchFormatter
-from lerobot.datasets import dataset_tools, dataset_writer, video_utils
+from lerobot.datasets import aggregate, dataset_tools, dataset_writer, video_utils
 from lerobot.datasets.dataset_reader import DatasetReader
 from lerobot.datasets.io_utils import pil_to_chw_tensor
 from lerobot.datasets.language import LANGUAGE_COLUMNS
@@ -65,6 +68,57 @@ _STOCK = {"query": DatasetReader._query_hf_dataset, "load": DatasetReader._load_
 # LeRobot's video encoder under each name it is called by (each module holds its own)
 _STOCK_ENCODERS = {module: module.encode_video_frames for module in (video_utils, dataset_writer, dataset_tools)}
 _STOCK_PARSE = draccus.parse
+
+
+@dataclass(frozen=True)
+class Patch:
+    """One attribute of LeRobot (or of the parser it uses) that the plugin replaces: the records behind the start-up
+    line and `docs/architecture.md`'s table of replaced functions."""
+
+    owner: object  # the module or class holding the attribute
+    attribute: str
+    fix: str  # the fix it is part of, as the start-up line names it
+    retire: str  # the upstream change after which the plugin can drop it
+    versions: str = LEROBOT_VERSION  # the LeRobot versions it is applied on ("any": every version)
+    when: str = "on import"  # when it is replaced: on importing the plugin, or inside which of the plugin's calls
+    stock: object = field(init=False, repr=False)  # the attribute as LeRobot defines it
+
+    def __post_init__(self):
+        object.__setattr__(self, "stock", getattr(self.owner, self.attribute))
+
+    @property
+    def symbol(self) -> str:
+        owner = self.owner
+        prefix = owner.__name__ if isinstance(owner, type(os)) else f"{owner.__module__}.{owner.__qualname__}"
+        return f"{prefix}.{self.attribute}"
+
+    def in_place(self) -> bool:
+        return getattr(self.owner, self.attribute) is not self.stock
+
+
+PATCHES: list[Patch] = []  # every replaced attribute; modules above this one add theirs with `register`
+
+
+def register(*patches: Patch) -> None:
+    PATCHES.extend(patches)
+
+
+# what each fix replaces (the numbers are the module docstring's); the last column of the docs' table is `retire`
+FORMATTER = ("columns formatted from NumPy", "a NumPy-backed torch formatter in `DatasetReader`")
+ENCODER = ("video encoding keeps its thread's scheduling", "the thread's scheduling restored after opening SVT-AV1")
+register(
+    Patch(DatasetReader, "_query_hf_dataset", *FORMATTER),  # fix 1
+    Patch(DatasetReader, "_load_hf_dataset", *FORMATTER),
+    *(Patch(module, "encode_video_frames", *ENCODER) for module in _STOCK_ENCODERS),  # fix 3
+    Patch(draccus, "parse", "config refusals keep their reasons", "a parse error printed with its cause", "any"),  # 4
+    Patch(  # fix 2
+        aggregate,
+        "aggregate_data",
+        "aggregation keeps array columns",
+        "array (`Array3D`) columns copied without pandas",
+        when="inside the plugin's own `aggregate_datasets` calls",
+    ),
+)
 
 
 class LeRobotTorchFormatter(TorchFormatter):
@@ -219,8 +273,6 @@ class _ArrayFeaturesAsImages:
 @contextlib.contextmanager
 def array_safe_aggregation():
     """LeRobot's `aggregate_datasets`, made to keep array (depth) columns; see fix 2 of the module docstring."""
-    from lerobot.datasets import aggregate
-
     stock = aggregate.aggregate_data
 
     def aggregate_data(src_meta, dst_meta, *args, **kwargs):

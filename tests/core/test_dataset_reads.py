@@ -214,5 +214,8 @@ def test_stock_lerobot_train_learns_the_same_weights_from_either_reader(dataset,
         assert json.loads((model / "config.json").read_text())["obs_space"] == "pointcloud"
         if reader == "memory":
             assert "decoded into memory" in proc.stderr + proc.stdout
+        # the start-up line says which reader trained (docs/architecture.md's table of replaced functions)
+        routes = "reader `memory`" if reader == "memory" else "LeRobot's reader (OBSBENCH_DATASET_READER=stock)"
+        assert "lerobot_obsbench patches" in proc.stderr + proc.stdout and routes in proc.stderr + proc.stdout
     assert weights["stock"].keys() == weights["memory"].keys()
     assert all(torch.equal(weights["stock"][k], weights["memory"][k]) for k in weights["stock"])
