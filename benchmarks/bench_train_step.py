@@ -225,34 +225,44 @@ def preset_rows(
     return rows, skipped
 
 
+def grid_run_policy(run, device: torch.device, synthetic, **fields) -> tuple:
+    """(policy, batch) of one grid run: the policy built as the grid's lerobot-train call builds it (preset, task
+    crop box, overrides; `fields` set more `--policy.*` fields) from torch's current seed, and a batch of
+    cluttered frames at the run's batch and image size."""
+    from lerobot_obsbench.bench.grid import task_overrides
+
+    kind = run.policy.removeprefix("obs_")
+    _, _, ours_cls, ours_policy = POLICIES[kind]
+    inputs, outputs = features(run.image_size)
+    fields = {
+        **preset_overrides(run.preset, run.policy, run.obs_space, run.encoder),
+        **task_overrides(run.task, run.obs_space),
+        **dict(run.policy_overrides),
+        "encoder": run.encoder,
+        "augment": run.augment,
+        "optimizer_lr": run.lr,
+        **fields,
+    }
+    cfg = ours_cls(
+        device=device.type, obs_space=run.obs_space, input_features=inputs, output_features=outputs, **fields
+    )
+    policy = ours_policy(cfg).to(device)
+    horizon = cfg.chunk_size if kind == "act" else cfg.horizon
+    n_obs = None if kind == "act" else cfg.n_obs_steps
+    frames = cluttered_frames(synthetic, run.batch_size, run.image_size)
+    return policy, make_batch(frames, run.batch_size, horizon, n_obs, device)
+
+
 def grid_rows(grid_name: str, device: torch.device, repeats: int, threads: list[int] | None = None) -> list[dict]:
     """One row per training run of a grid (the first seed and learning rate of each method): its policy built as
     the grid's lerobot-train call builds it (preset, task crop box, overrides), timed at the run's batch and image
     size; with `threads`, one row per CPU thread count, the counts of one policy timed one after the other."""
-    from lerobot_obsbench.bench.grid import load_grid, task_overrides
+    from lerobot_obsbench.bench.grid import load_grid
 
     runs = {run.method: run for run in reversed(load_grid(grid_name).expand())}
     synthetic, rows = load_synthetic(), []
     for run in runs.values():
-        kind = run.policy.removeprefix("obs_")
-        _, _, ours_cls, ours_policy = POLICIES[kind]
-        inputs, outputs = features(run.image_size)
-        fields = {
-            **preset_overrides(run.preset, run.policy, run.obs_space, run.encoder),
-            **task_overrides(run.task, run.obs_space),
-            **dict(run.policy_overrides),
-            "encoder": run.encoder,
-            "augment": run.augment,
-            "optimizer_lr": run.lr,
-        }
-        cfg = ours_cls(
-            device=device.type, obs_space=run.obs_space, input_features=inputs, output_features=outputs, **fields
-        )
-        policy = ours_policy(cfg).to(device)
-        horizon = cfg.chunk_size if kind == "act" else cfg.horizon
-        n_obs = None if kind == "act" else cfg.n_obs_steps
-        frames = cluttered_frames(synthetic, run.batch_size, run.image_size)
-        batch = make_batch(frames, run.batch_size, horizon, n_obs, device)
+        policy, batch = grid_run_policy(run, device, synthetic)
         for count in threads or [torch.get_num_threads()]:
             torch.set_num_threads(count)
             t = step_time(policy, batch, repeats)

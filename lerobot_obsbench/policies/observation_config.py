@@ -126,8 +126,8 @@ class ObservationConfig:
     # camera; ViT / MultiViT resize to 256 and centre-crop 224). None: frames at their recorded size.
     image_input_size: int | None = None
     # Train with the observation encoder compiled by torch.compile (inductor): the same model and weights, fused
-    # kernels (the keypoint encoder's training step on a CPU: docs/performance.md); evaluation runs it eagerly, so a
-    # checkpoint loads and acts without compiling.
+    # kernels (on a CPU no faster: benchmarks/bench_compile.py, docs/performance.md); evaluation runs it eagerly,
+    # so a checkpoint loads and acts without compiling.
     compile_encoder: bool = False
     # Start the stem's extra input channels (depth, xyz) at zero also when training from scratch, as the official
     # code does (a depth-only stem starts all zero). Pretrained stems always start them at zero.
