@@ -1,15 +1,9 @@
-"""Observation encoders. Importing this package registers the built-in encoders."""
+"""Observation encoders. Importing this package registers the built-in encoders: every module in it is imported,
+so an encoder is added by adding its module (one that calls `register_encoder`), with no list to edit."""
 
-from lerobot_obsbench.encoders import (  # noqa: F401  (registration)
-    blind,
-    dp3,
-    keypoints,
-    oracle,
-    pointnet,
-    resnet,
-    spunet34,
-    vit,
-)
+import importlib
+import pkgutil
+
 from lerobot_obsbench.encoders.registry import (
     EncoderContext,
     EncoderOutput,
@@ -33,3 +27,6 @@ __all__ = [
     "make_encoder",
     "register_encoder",
 ]
+
+for _module in pkgutil.iter_modules(__path__):
+    importlib.import_module(f"{__name__}.{_module.name}")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 import torch
 import torchvision
@@ -224,3 +226,18 @@ def test_sine_embedding_is_distinct_per_position():
     emb = sine_embedding_3d(xyz, 64)
     assert emb.shape == (1, 3, 64)
     assert (emb[0, 0] - emb[0, 1]).abs().sum() > 0.1 and (emb[0, 1] - emb[0, 2]).abs().sum() > 0.1
+
+
+def test_every_encoder_module_in_the_package_registers_with_no_list_to_edit():
+    """The package imports each of its modules: every module that registers an encoder is in the registry, and
+    nothing else is."""
+    import lerobot_obsbench.encoders as package
+
+    folder = Path(package.__file__).parent
+    defining = {
+        f"{package.__name__}.{path.stem}"
+        for path in folder.glob("*.py")
+        if path.stem != "registry" and "register_encoder(" in path.read_text()
+    }
+    registered = {encoder_info(name).build.__module__ for name in available_encoders()}
+    assert len(defining) >= 8 and registered == defining
