@@ -65,8 +65,24 @@ def _plain(value):
 
 @dataclass
 class ObservationConfig:
-    # Observation space the policy sees: rgb, depth, rgbd, pointmap or pointcloud. The one field to change
-    # when comparing spaces; the dataset stays the same.
+    """The observation fields of obs_act and obs_diffusion, in groups:
+
+    Args:
+        What the policy sees: `obs_space` (the one field to change when comparing spaces), its `encoder`, the
+            encoder's normalisation and pretrained weights, and the cameras read.
+        Filled in from the dataset: the camera resolution, the oracle's privileged-state size and names, and the
+            calibration of LeRobot-native depth; saved with the checkpoint so that evaluation can check the env.
+        Point clouds: the coordinate frame, per-point features, tokenizer (sampling, tokens, neighbours), voxel
+            size, the workspace crop box and its training jitter, and the official pipeline's details.
+        Images and depth: depth clipping and scaling, the encoder's input size, zero-initialised extra channels.
+        Training: the augmentation recipe and whether the encoder is compiled.
+        Optimiser and schedule: the paper's AdamW and OneCycle (Appendix C).
+    """
+
+    # --- What the policy sees ---
+    # Observation space the policy sees: rgb, depth, rgbd, pointmap, pointcloud, the fused rgb+pointcloud, or a
+    # control (none: blind; state: the oracle's object poses). The one field to change when comparing spaces; the
+    # dataset stays the same.
     obs_space: str = "pointcloud"
     # Registered encoder name (`obsbench encoders` lists them). Empty: the registry's default for the space
     # (the paper's: resnet50 for images, pointnet for point clouds).
@@ -81,6 +97,8 @@ class ObservationConfig:
     # Cameras to read (`observation.*.<cam>` keys). Empty: every camera of the dataset that has the keys the
     # space needs; filled in and saved with the checkpoint.
     cameras: list[str] = field(default_factory=list)
+
+    # --- Filled in from the dataset when training starts and saved with the checkpoint ---
     # (height, width) of the camera frames the policy was trained on; filled in from the dataset and saved,
     # so evaluation can refuse an env rendering another size.
     camera_resolution: list[int] = field(default_factory=list)
@@ -94,6 +112,8 @@ class ObservationConfig:
     # the fields of `camera_calibration.CameraCalibration`. Filled in from the dataset's meta/obsbench_cameras.json
     # (`obsbench attach-calibration`) when training starts, and saved with the checkpoint.
     depth_calibration: dict[str, dict] = field(default_factory=dict)
+
+    # --- Point clouds (and pointmap's frame) ---
     # Frame of point coordinates (pointcloud, pointmap): world, camera (first camera) or ee (end effector,
     # from the last 7 values of observation.state: xyz + quaternion wxyz).
     frame: str = "world"
@@ -110,13 +130,18 @@ class ObservationConfig:
     # Workspace crop box in the world frame (xmin, xmax, ymin, ymax, zmin, zmax), metres; zmin > 0 drops the
     # ground / table plane.
     workspace: list[float] = field(default_factory=lambda: list(DEFAULT_WORKSPACE))
-    # Training-time augmentation recipe: registered names joined by '+' (`random_shift`, `point_jitter+point_dropout`;
-    # `obsbench encoders` lists them with their spaces), run inside the policy's forward in training only (the
-    # centre crop of `random_crop` also at test). Empty: none.
-    augment: str = ""
     # Training-time jitter of each workspace bound, metres (uniform in ±jitter per sample; the official
     # real-robot code uses 0.01). Point clouds only.
     workspace_jitter: float = 0.0
+    # Point-cloud sampling details: "plugin" (deterministic voxel point at evaluation, FPS from the first point)
+    # or "official" (a random point per voxel also at evaluation, points shuffled in training, the tokenizer's
+    # BatchNorm with PyTorch's defaults and statistics over repeated seed slots, as the official code).
+    point_pipeline: str = "plugin"
+    # Scale of the xyz point features: "metres" (the paper's) or "box" ([-1, 1] over `workspace`, as DP3's code
+    # scales its clouds; world frame only). Point positions stay in metres.
+    point_normalization: str = "metres"
+
+    # --- Images and depth ---
     # Depth range (near, far) in metres that depth images are clipped to and scaled from.
     depth_clip: list[float] = field(default_factory=lambda: [0.0, 2.0])
     # Scaling of depth images and pointmap xyz: "clip" (to depth_clip, then [-1, 1]) or "official" (the official
@@ -125,20 +150,21 @@ class ObservationConfig:
     # Image encoders resize frames to this size first (the official pipeline: 224, i.e. 49 ResNet tokens per
     # camera; ViT / MultiViT resize to 256 and centre-crop 224). None: frames at their recorded size.
     image_input_size: int | None = None
+    # Start the stem's extra input channels (depth, xyz) at zero also when training from scratch, as the official
+    # code does (a depth-only stem starts all zero). Pretrained stems always start them at zero.
+    zero_init_extra_channels: bool = False
+
+    # --- Training ---
+    # Training-time augmentation recipe: registered names joined by '+' (`random_shift`, `point_jitter+point_dropout`;
+    # `obsbench encoders` lists them with their spaces), run inside the policy's forward in training only (the
+    # centre crop of `random_crop` also at test). Empty: none.
+    augment: str = ""
     # Train with the observation encoder compiled by torch.compile (inductor): the same model and weights, fused
     # kernels (on a CPU no faster: benchmarks/bench_compile.py, docs/performance.md); evaluation runs it eagerly,
     # so a checkpoint loads and acts without compiling.
     compile_encoder: bool = False
-    # Start the stem's extra input channels (depth, xyz) at zero also when training from scratch, as the official
-    # code does (a depth-only stem starts all zero). Pretrained stems always start them at zero.
-    zero_init_extra_channels: bool = False
-    # Point-cloud sampling details: "plugin" (deterministic voxel point at evaluation, FPS from the first point)
-    # or "official" (a random point per voxel also at evaluation, points shuffled in training, the tokenizer's
-    # BatchNorm with PyTorch's defaults and statistics over repeated seed slots, as the official code).
-    point_pipeline: str = "plugin"
-    # Scale of the xyz point features: "metres" (the paper's) or "box" ([-1, 1] over `workspace`, as DP3's code
-    # scales its clouds; world frame only). Point positions stay in metres.
-    point_normalization: str = "metres"
+
+    # --- Optimiser and schedule (the paper's recipe) ---
     # AdamW of the paper's training recipe (Appendix C): weight decay, betas, eps.
     optimizer_weight_decay: float = 0.05
     optimizer_betas: tuple[float, float] = (0.9, 0.999)
