@@ -10,6 +10,8 @@ from pathlib import Path
 
 import torch
 
+from benchmarks.portable import portable
+
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 
@@ -48,6 +50,6 @@ def machine() -> dict:
 def write(name: str, payload: dict, out: Path | None = None) -> Path:
     path = out or RESULTS / f"{name}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({"benchmark": name, "machine": machine(), **payload}, indent=2) + "\n")
+    path.write_text(json.dumps(portable({"benchmark": name, "machine": machine(), **payload}), indent=2) + "\n")
     print(f"wrote {path}")
     return path

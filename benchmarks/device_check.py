@@ -50,6 +50,8 @@ import traceback
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from benchmarks.portable import portable
+
 TASK = "PushCubeWide-v1"  # the quick grid's task
 # Everything the stages import: the bundle builder (scripts/device_bundle.py) carries the distributions these need
 # that the GPU machine's image lacks.
@@ -82,8 +84,8 @@ RESULT = "device_check.json"
 # lerobot_obsbench/outputs.py's record of which command wrote which file of a folder, read and written here in its
 # format: the check's options are checked before the plugin is imported, which its imports stage reports on.
 OUTPUTS_RECORD = ".obsbench_outputs.json"
-# Where the NVIDIA driver of the lent GPU machines keeps its Vulkan ICD when /usr/share/vulkan has none (the
-# device tool's notes).
+# Where the NVIDIA driver of container GPU nodes (NVIDIA's container toolkit) keeps its Vulkan ICD when
+# /usr/share/vulkan has none.
 NVIDIA_VULKAN_ICD = Path("/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json")
 
 
@@ -203,7 +205,7 @@ def _write_text_atomic(path: Path, text: str) -> None:
 
 def write_result(out: Path, result: dict, writer: dict) -> None:
     """The check's JSON written whole into `out`, and noted in the folder's output record as `writer`'s."""
-    _write_text_atomic(out / RESULT, json.dumps(result, indent=2) + "\n")
+    _write_text_atomic(out / RESULT, json.dumps(portable(result), indent=2) + "\n")
     record = {**_recorded(out), RESULT: {**writer, "sha256": _sha256(out / RESULT)}}
     _write_text_atomic(out / OUTPUTS_RECORD, json.dumps({"files": record}, indent=1, sort_keys=True) + "\n")
 

@@ -1,9 +1,8 @@
-"""Pack what the lent GPU machine lacks for the device check (benchmarks/device_check.py) into parts that one
-device call each can carry.
+"""Pack what an offline GPU node lacks for the device check (benchmarks/device_check.py) into parts of a size
+you choose, for a transfer that limits what one copy carries.
 
-That machine (an H100 or H200 with 16 cores) has Python 3.12 with PyTorch, Triton and CuPy, but no LeRobot,
-ManiSkill, SAPIEN or Vulkan loader, reaches no network, and a call carries at most 64 MiB together with the working
-tree. This builder, run here:
+The node this is sized for has Python 3.12 with PyTorch, Triton and CuPy, but no LeRobot, ManiSkill, SAPIEN or
+Vulkan loader, and reaches no network. This builder, run where the project is installed:
 
 1. imports the check's modules (`device_check.MODULES`) in this venv and keeps the distributions they loaded that
    the machine's image lacks (`IMAGE_PACKAGES`), at this venv's versions; downloads their Python 3.12 x86-64
@@ -20,14 +19,14 @@ tree. This builder, run here:
     .venv/bin/python -m scripts.device_bundle --checkpoint outputs/.../pretrained_model [--out .device_bundle]
         [--part-mib 56] [--with-spconv]
 
-Then, on the GPU machine, one call per part (each carries `.device_bundle/part-NN`; the machine keeps /tmp while
-it stays warm between calls), the last one running the check:
+Then, on the GPU node, one install per part copied there (`.device_bundle/part-NN`, beside a checkout of this
+repository; the stash in /tmp must survive between parts), then the check:
 
     python3 scripts/device_install.py .device_bundle/part-00      # ... part-01, ...
     PYTHONPATH=.:/tmp/obsbench-site python3 -m benchmarks.device_check --device cuda \\
         --checkpoint /tmp/obsbench-bundle/checkpoint --out $OUT
 
-56 MiB leaves room for the working tree (~5 MiB) under the call's 64 MiB.
+The default 56 MiB leaves room for the repository's working tree (~5 MiB) in a 64 MiB transfer.
 """
 
 from __future__ import annotations
@@ -318,7 +317,7 @@ def write_parts(items: list[Item], out: Path, limit: int, missing: list[dict]) -
             for item in sorted(items, key=lambda i: i.name)
         ],
         "missing": missing,
-        "install": "python3 scripts/device_install.py .device_bundle/part-NN   # one call per part",
+        "install": "python3 scripts/device_install.py .device_bundle/part-NN   # once per part",
     }
     text = json.dumps(manifest, indent=2) + "\n"
     (out / "manifest.json").write_text(text)
@@ -431,7 +430,7 @@ def main(argv: list[str] | None = None) -> None:
     else:
         missing.append(
             {
-                "what": f"SAPIEN's GPU PhysX library ({library})",
+                "what": f"SAPIEN's GPU PhysX library (~/{library.relative_to(Path.home())})",
                 "why": "SAPIEN downloads it from GitHub at the first GPU simulation; this machine has none to carry "
                 "(run one GPU simulation where GitHub is reachable, or unzip the release's linux-so.zip there)",
             }

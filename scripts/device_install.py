@@ -1,11 +1,11 @@
-"""Install one part of the device bundle (scripts/device_bundle.py) on the GPU machine; standard library only.
+"""Install one part of the device bundle (scripts/device_bundle.py) on the GPU node; standard library only.
 
     python3 scripts/device_install.py .device_bundle/part-00 [--target /tmp/obsbench-site]
         [--stash /tmp/obsbench-bundle] [--root /]
 
-It runs with the machine's bare Python before anything of the bundle is installed, so it imports nothing of the
+It runs with the node's bare Python before anything of the bundle is installed, so it imports nothing of the
 plugin and checks what it is given itself. Each piece of the part is checked against its size and SHA-256 in the
-manifest, then copied into the stash, which outlives the call on a machine that stays warm between calls. The stash
+manifest, then copied into the stash, which collects the parts as they arrive one at a time. The stash
 holds one bundle: a part of another bundle (one whose manifest lists other files or other contents) is refused,
 naming the files that differ. Every file whose pieces have all arrived is joined and checked against the manifest's
 SHA-256, then: a wheel is installed into --target by pip (no index, no dependencies; put --target first on

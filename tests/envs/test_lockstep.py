@@ -183,7 +183,7 @@ def test_the_simulation_backend_follows_device_batch_and_perturbation():
 
 
 def test_a_gpu_simulation_without_sapiens_gpu_physx_library_says_how_to_get_it(monkeypatch, tmp_path):
-    """On the lent H200 (offline) SAPIEN's first GPU simulation tried to download its GPU PhysX library from GitHub
+    """On an offline H200 SAPIEN's first GPU simulation tried to download its GPU PhysX library from GitHub
     and failed name resolution (benchmarks/results/device_check_cuda.json): the env says what is missing and what
     to do, not requests' traceback."""
     import gymnasium
