@@ -44,6 +44,7 @@ def test_a_traceback_is_made_portable():
 def test_committed_results_hold_no_machine_paths():
     files = [*(REPO / "benchmarks" / "results").glob("*.json"), *(REPO / "docs" / "results").rglob("*.json")]
     files += list((REPO / "docs" / "results").rglob("*.jsonl"))
+    files = [path for path in files if not path.name.startswith(".")]  # a writer's own record, never committed
     assert len(files) > 10
     found = []
     for path in files:
