@@ -18,25 +18,16 @@ from pathlib import Path
 
 import torch
 
-from benchmarks.bench_train_step import grid_run_policy, prepare, release
+from benchmarks.bench_train_step import grid_run_policy, prepare, release, train_step
 from benchmarks.common import load_synthetic, write
+from lerobot_obsbench.numeric import number_argument
 from lerobot_obsbench.schema import CONTROL_SPACES
 
 
-def stepper(policy, batch: dict):
-    """One optimizer step of `policy` on `batch` (as lerobot-train takes it), returning its wall time in ms."""
-    policy.train()
-    optimizer = policy.config.get_optimizer_preset().build(policy.get_optim_params())
-
-    def step() -> float:
-        start = time.perf_counter()
-        optimizer.zero_grad(set_to_none=True)
-        loss, _ = policy.forward(batch)
-        loss.backward()
-        optimizer.step()
-        return (time.perf_counter() - start) * 1000
-
-    return step
+def milliseconds(step) -> float:
+    start = time.perf_counter()
+    step()
+    return (time.perf_counter() - start) * 1000
 
 
 def first_loss(policy, batch: dict) -> float:
@@ -54,7 +45,7 @@ def compare(run, device: torch.device, synthetic, repeats: int, warmup: int) -> 
     weights = zip(eager.state_dict().values(), compiled.state_dict().values(), strict=True)
     same_weights = all(torch.equal(a, b) for a, b in weights)
     losses = {"eager": first_loss(eager, batch), "compiled": first_loss(compiled, batch)}
-    steps = {"eager": stepper(eager, batch), "compiled": stepper(compiled, batch)}
+    steps = {"eager": train_step(eager, batch), "compiled": train_step(compiled, batch)}
     start = time.perf_counter()
     for _ in range(warmup):  # the compiled policy's first steps compile
         for step in steps.values():
@@ -63,7 +54,7 @@ def compare(run, device: torch.device, synthetic, repeats: int, warmup: int) -> 
     times = {"eager": [], "compiled": []}
     for _ in range(repeats):
         for name, step in steps.items():
-            times[name].append(step())
+            times[name].append(milliseconds(step))
     medians = {name: statistics.median(t) for name, t in times.items()}
     pairs = [e / c for e, c in zip(times["eager"], times["compiled"], strict=True)]
     row = {
@@ -95,14 +86,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--grid", default="cpu-ranking", help="grid preset name or file (its seeing spaces' runs)")
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--repeats", type=int, default=30, help="interleaved steps of each policy")
-    parser.add_argument("--warmup", type=int, default=3, help="untimed steps of each first (compilation)")
-    parser.add_argument("--threads", type=int, default=1, help="CPU threads (a grid's --threads)")
+    whole = number_argument(whole=True, minimum=1)
+    parser.add_argument("--repeats", type=whole, default=30, help="interleaved steps of each policy (>= 1)")
+    parser.add_argument("--warmup", type=whole, default=3, help="untimed steps of each first, compiling (>= 1)")
+    parser.add_argument("--threads", type=whole, default=1, help="CPU threads, a grid's --threads (>= 1)")
     parser.add_argument("--out", type=Path)
     args = parser.parse_args()
-    for name in ("repeats", "warmup", "threads"):
-        if getattr(args, name) < 1:
-            parser.error(f"--{name} must be at least 1")
     from lerobot_obsbench.bench.grid import load_grid
 
     device = torch.device(args.device)

@@ -97,14 +97,12 @@ def make_batch(frames: dict, batch: int, horizon: int, n_obs: int | None, device
     return out
 
 
-def step_time(policy, batch: dict, repeats: int) -> dict:
-    """One optimizer step as lerobot-train takes it (the policy's own optimizer preset), timed; on a CUDA device
-    with the peak memory the steps allocated."""
+def train_step(policy, batch: dict):
+    """A function taking one optimizer step of `policy` on `batch` as lerobot-train takes it (the policy's own
+    optimizer preset), returning when a CUDA device has finished it."""
     policy.train()
     optimizer = policy.config.get_optimizer_preset().build(policy.get_optim_params())
     cuda = batch["action"].is_cuda
-    if cuda:
-        torch.cuda.reset_peak_memory_stats()
 
     def step():
         optimizer.zero_grad(set_to_none=True)
@@ -114,7 +112,15 @@ def step_time(policy, batch: dict, repeats: int) -> dict:
         if cuda:
             torch.cuda.synchronize()
 
-    result = timed(step, repeats=repeats, warmup=2)
+    return step
+
+
+def step_time(policy, batch: dict, repeats: int) -> dict:
+    """One optimizer step (`train_step`), timed; on a CUDA device with the peak memory the steps allocated."""
+    cuda = batch["action"].is_cuda
+    if cuda:
+        torch.cuda.reset_peak_memory_stats()
+    result = timed(train_step(policy, batch), repeats=repeats, warmup=2)
     result["steps_per_s"] = round(1000 / result["median_ms"], 2)
     if cuda:
         result["peak_memory_MiB"] = round(torch.cuda.max_memory_allocated() / 2**20, 1)
