@@ -59,24 +59,19 @@ VIDEO_DECODE_ERRORS = (RuntimeError, ValueError, OSError, av.error.FFmpegError)
 # LeRobot's own per-row columns, which its reader uses to place a sample in its episode
 INDEX_COLUMNS = ("timestamp", "frame_index", "episode_index", "index", "task_index")
 
-_STOCK = {
-    "resolve": factory.resolve_delta_timestamps,
-    "init": DatasetReader.__init__,
-    "try_load": DatasetReader.try_load,
-    "load_and_activate": DatasetReader.load_and_activate,
-    "get_item": DatasetReader.get_item,
-}
-
 
 READS_FIX = "the plugin's policies read only their features"
 READS_RETIRE = "a reader that serves only the features a policy declares, decoded once"
-patches.register(
+READS_PATCHES = (
     Patch(factory, "resolve_delta_timestamps", READS_FIX, READS_RETIRE),
     *(
         Patch(DatasetReader, name, READS_FIX, READS_RETIRE)
         for name in ("__init__", "try_load", "load_and_activate", "get_item")
     ),
 )
+patches.register(*READS_PATCHES)
+# LeRobot's own functions by name, as the records captured them
+_STOCK = {patch.attribute: patch.stock for patch in READS_PATCHES}
 ARCHITECTURE_TABLE = "docs/architecture.md#lerobot-functions-the-plugin-replaces"
 _announced: list[str] = []  # the start-up line, once logged (once per process)
 
@@ -130,7 +125,7 @@ def memory_budget_bytes() -> int:
 def resolve_delta_timestamps(cfg, ds_meta):
     """LeRobot's resolver; for a config that declares its reads, the result tagged with them."""
     announce()
-    delta_timestamps = _STOCK["resolve"](cfg, ds_meta)
+    delta_timestamps = _STOCK["resolve_delta_timestamps"](cfg, ds_meta)
     declare: Callable | None = getattr(cfg, "dataset_reads", None)
     if declare is None or reader_choice() == "stock":
         return delta_timestamps
@@ -288,7 +283,7 @@ def attach_rows(reader: DatasetReader) -> None:
 
 
 def reader_init(self, *args, **kwargs):
-    _STOCK["init"](self, *args, **kwargs)
+    _STOCK["__init__"](self, *args, **kwargs)
     delta_timestamps = kwargs.get("delta_timestamps", args[5] if len(args) > 5 else None)
     self._obsbench_reads = getattr(delta_timestamps, "reads", None)
     self._obsbench_rows = None

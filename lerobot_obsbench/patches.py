@@ -43,6 +43,7 @@ import contextlib
 import functools
 import logging
 import os
+import types
 from dataclasses import dataclass, field
 from importlib import metadata
 
@@ -64,10 +65,6 @@ logger = logging.getLogger(__name__)
 
 FORMAT_TYPE = "lerobot_obsbench_torch"
 LEROBOT_VERSION = "0.6.1"  # the version these patches replace methods of
-_STOCK = {"query": DatasetReader._query_hf_dataset, "load": DatasetReader._load_hf_dataset}
-# LeRobot's video encoder under each name it is called by (each module holds its own)
-_STOCK_ENCODERS = {module: module.encode_video_frames for module in (video_utils, dataset_writer, dataset_tools)}
-_STOCK_PARSE = draccus.parse
 
 
 @dataclass(frozen=True)
@@ -89,7 +86,7 @@ class Patch:
     @property
     def symbol(self) -> str:
         owner = self.owner
-        prefix = owner.__name__ if isinstance(owner, type(os)) else f"{owner.__module__}.{owner.__qualname__}"
+        prefix = owner.__name__ if isinstance(owner, types.ModuleType) else f"{owner.__module__}.{owner.__qualname__}"
         return f"{prefix}.{self.attribute}"
 
     def in_place(self) -> bool:
@@ -106,11 +103,18 @@ def register(*patches: Patch) -> None:
 # what each fix replaces (the numbers are the module docstring's); the last column of the docs' table is `retire`
 FORMATTER = ("columns formatted from NumPy", "a NumPy-backed torch formatter in `DatasetReader`")
 ENCODER = ("video encoding keeps its thread's scheduling", "the thread's scheduling restored after opening SVT-AV1")
-register(
-    Patch(DatasetReader, "_query_hf_dataset", *FORMATTER),  # fix 1
+FORMATTER_PATCHES = (  # fix 1
+    Patch(DatasetReader, "_query_hf_dataset", *FORMATTER),
     Patch(DatasetReader, "_load_hf_dataset", *FORMATTER),
-    *(Patch(module, "encode_video_frames", *ENCODER) for module in _STOCK_ENCODERS),  # fix 3
-    Patch(draccus, "parse", "config refusals keep their reasons", "a parse error printed with its cause", "any"),  # 4
+)
+# fix 3: LeRobot's video encoder under each name it is called by (each module holds its own)
+ENCODER_PATCHES = tuple(Patch(m, "encode_video_frames", *ENCODER) for m in (video_utils, dataset_writer, dataset_tools))
+PARSE = ("config refusals keep their reasons", "a parse error printed with its cause")
+PARSE_PATCH = Patch(draccus, "parse", *PARSE, versions="any")
+register(
+    *FORMATTER_PATCHES,
+    *ENCODER_PATCHES,
+    PARSE_PATCH,  # fix 4
     Patch(  # fix 2
         aggregate,
         "aggregate_data",
@@ -119,6 +123,10 @@ register(
         when="inside the plugin's own `aggregate_datasets` calls",
     ),
 )
+# LeRobot's own functions, as the records captured them
+_STOCK = {"query": FORMATTER_PATCHES[0].stock, "load": FORMATTER_PATCHES[1].stock}
+_STOCK_ENCODERS = {patch.owner: patch.stock for patch in ENCODER_PATCHES}
+_STOCK_PARSE = PARSE_PATCH.stock
 
 
 class LeRobotTorchFormatter(TorchFormatter):
