@@ -241,6 +241,9 @@ class Grid:
     samples: float | dict[str, float] | None = None
     demo_epochs: float | dict[str, float] | None = None
     frame_epochs: float | dict[str, float] | None = None
+    # task -> its own budget in the unit its policies are given (e.g. {PickCube-v1: 30000}), for every space alike:
+    # a task that needs more steps than the others before its oracle clears blind
+    task_budgets: dict[str, float] = field(default_factory=dict)
     batch_size: int | dict[str, int] = 32
     # evenly spaced checkpoints saved during training (for resuming and for checkpoint selection)
     checkpoints: int | dict[str, int] = 4
@@ -248,8 +251,8 @@ class Grid:
     # on the test seeds (the report shows it by default); 0: the last checkpoint only
     validation_episodes: int = 0
     # optimizer steps whose checkpoints the test seeds also evaluate (the nominal scene): each run's learning curve,
-    # ending at its last checkpoint; every step below the runs' budgets. The checkpoints are saved besides
-    # `checkpoints`' and kept
+    # ending at its last checkpoint; a run's curve has the steps below its budget (each step must lie below some
+    # run's). The checkpoints are saved besides `checkpoints`' and kept
     eval_checkpoints: list[int] = field(default_factory=list)
     # demonstrations recorded beyond the most any run trains on, never trained on: each trained run's diagnostics
     # (open-loop action error, objects' pixel size and point-token share; bench/diagnostics.py) are computed on
@@ -299,6 +302,7 @@ class Grid:
             self.tasks, self.obs_spaces, self.policies, self.variants, self.demos, self.learning_rates, self.seeds
         ):
             unit, budget = self.budget(policy)
+            budget = self.task_budgets.get(task, budget)
             overrides = {
                 **task_overrides(task, space),
                 **self.policy_overrides,
@@ -336,6 +340,10 @@ class Grid:
     def test_checkpoints(self) -> tuple[str, ...]:
         return ("last", "best") if self.validation_episodes else ("last",)
 
+    def curve(self, run: RunSpec) -> tuple[int, ...]:
+        """The steps of `run`'s learning curve before its last checkpoint: the eval_checkpoints below its budget."""
+        return tuple(step for step in sorted(self.eval_checkpoints) if step < run.steps())
+
     def evaluations(self, run: RunSpec) -> list[EvalSpec]:
         """The run's test evaluations: each tested checkpoint, nominally and under every perturbation, then its
         learning curve's earlier checkpoints (nominally)."""
@@ -345,7 +353,7 @@ class Grid:
             for perturbation in ("none", *self.perturbations_for(run))
         ] + [
             EvalSpec(run.run_id, f"step:{step}", "test", self.eval_episodes, "none", self.max_steps(run))
-            for step in sorted(self.eval_checkpoints)  # checked below every run's budget when the grid loads
+            for step in self.curve(run)
         ]
 
     def perturbations_for(self, run: RunSpec) -> list[str]:
@@ -470,6 +478,7 @@ NUMERIC_FIELDS = {
     "samples": {"above": 0},
     "demo_epochs": {"above": 0},
     "frame_epochs": {"above": 0},
+    "task_budgets": {"above": 0},
     "batch_size": {"whole": True, "minimum": 1},
     "checkpoints": {"whole": True, "minimum": 1},
     "validation_episodes": {"whole": True, "minimum": 0},
@@ -484,12 +493,10 @@ TEXT_LIST_FIELDS = ("cameras", "perturbations")
 
 
 def _checked_number(value, label: str, bounds: dict):
-    """`value` of a numeric grid field (a number, a list or a per-policy mapping of them) as check_number gives it
-    back: a whole number written 2.0 is 2, so it names the same runs as 2."""
-    if isinstance(value, dict):  # per policy
-        return {
-            policy: check_number(f"{label} of {policy}", v, error=GridError, **bounds) for policy, v in value.items()
-        }
+    """`value` of a numeric grid field (a number, a list or a per-policy or per-task mapping of them) as
+    check_number gives it back: a whole number written 2.0 is 2, so it names the same runs as 2."""
+    if isinstance(value, dict):
+        return {key: check_number(f"{label} of {key}", v, error=GridError, **bounds) for key, v in value.items()}
     if isinstance(value, (list, tuple)):
         return list(check_numbers(label, value, error=GridError, **bounds))
     return check_number(label, value, error=GridError, **bounds)
@@ -542,6 +549,12 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
     for key in PER_POLICY:
         if isinstance(values.get(key), dict):
             _choose(list(values[key]), list(policies), f"policies in {key}")
+    task_budgets = values.get("task_budgets", {})
+    if not isinstance(task_budgets, dict):
+        raise GridError(
+            f"{name}: task_budgets maps tasks to budgets, e.g. {{PickCube-v1: 30000}}; got {task_budgets!r}"
+        )
+    _choose(list(task_budgets), tasks, "tasks in task_budgets")
     _check_values(values, name)
     for task in [] if rlbench else tasks:
         try:
@@ -637,21 +650,23 @@ def _check_grid(grid: Grid, rlbench: bool, name: str) -> None:
 
 
 def _check_curve(grid: Grid, name: str) -> None:
-    """`eval_checkpoints` lie below every run's budget, which must be known before training (not frame_epochs)."""
+    """Each of `eval_checkpoints` lies below some run's budget, which must be known before training (not
+    frame_epochs)."""
     if not grid.eval_checkpoints:
         return
-    for run in grid.expand():
-        if run.budget_unit == "frame_epochs":
-            raise GridError(
-                f"{name}: eval_checkpoints are optimizer steps, and a frame_epochs budget's steps are known only "
-                "once the demonstrations are recorded; give the budget as steps, samples or demo_epochs"
-            )
-        late = [step for step in grid.eval_checkpoints if step >= run.steps()]
-        if late:
-            raise GridError(
-                f"{name}: eval_checkpoints {late} are not below the {run.steps()} steps {run.method} trains on "
-                f"{run.task} (the last checkpoint ends every curve); list earlier steps"
-            )
+    runs = grid.expand()
+    if any(run.budget_unit == "frame_epochs" for run in runs):
+        raise GridError(
+            f"{name}: eval_checkpoints are optimizer steps, and a frame_epochs budget's steps are known only "
+            "once the demonstrations are recorded; give the budget as steps, samples or demo_epochs"
+        )
+    longest = max(run.steps() for run in runs)
+    late = [step for step in grid.eval_checkpoints if step >= longest]
+    if late:
+        raise GridError(
+            f"{name}: eval_checkpoints {late} are not below the {longest} steps of the grid's longest run (the "
+            "last checkpoint ends every curve); list earlier steps"
+        )
 
 
 def _check_rlbench(values: dict, tasks: list, rlbench: list[str], name: str) -> None:

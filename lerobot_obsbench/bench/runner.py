@@ -112,7 +112,7 @@ def missing_curve(grid: Grid, work: Work) -> dict[str, list[int]]:
     missing = {}
     for run in work.runs:
         train = work.trained.get(run.run_id)
-        steps = [s for s in sorted(grid.eval_checkpoints) if train is not None and str(s) not in train["checkpoints"]]
+        steps = [s for s in grid.curve(run) if train is not None and str(s) not in train["checkpoints"]]
         if steps:
             missing[run.run_id] = steps
     return missing
@@ -259,7 +259,7 @@ class Driver:
                 held_out=self.grid.held_out_demos,
                 loader_workers=self.loader_workers,
                 threads=self.threads,
-                curve=tuple(sorted(self.grid.eval_checkpoints)),
+                curve=self.grid.curve(run),
             )
         )
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
 
 import numpy as np
 import pytest
@@ -298,12 +299,15 @@ def test_grid_numbers_are_refused_by_the_projects_one_rule_in_its_words():
     """Every grid number goes through lerobot_obsbench.numeric: what check_number refuses, the grid refuses with
     its words (NaN, infinities, out of range, a bool, text)."""
     for field, bounds in NUMERIC_FIELDS.items():
+        per_task = field == "task_budgets"  # a mapping task -> number only
+        label = f"{field} of PushCube-v1" if per_task else field
         for value in (float("nan"), float("inf"), -1, 0, 0.5, True, "3"):
             try:
-                check_number(field, value, **bounds)
+                check_number(label, value, **bounds)
             except ValueError as refusal:
+                written = {"PushCube-v1": value} if per_task else value
                 with pytest.raises(GridError) as err:
-                    parse_grid({**BASE, field: [value] if field in ("seeds", "demos", "learning_rates") else value})
+                    parse_grid({**BASE, field: [value] if field in ("seeds", "demos", "learning_rates") else written})
                 assert str(err.value).replace("[0]", "") == f"grid: {refusal}"
 
 
@@ -567,75 +571,54 @@ def test_evaluations_run_in_lockstep_up_to_the_cores_a_unit_gets():
     assert run.config() == parse_grid({**BASE, "eval_batch_size": 4}).expand()[0].config()  # not in the identity
 
 
-def test_the_evaluation_cost_model_is_the_benchmarks_measurement():
-    """The dry run's CPU evaluation rates and the CPU default batch size are what benchmarks/bench_eval.py
-    measured (benchmarks/results/eval_cpu.json): rerunning the benchmark with other numbers fails here until the
-    constants follow."""
-
-    from lerobot_obsbench.bench.cost import EVAL_RATE_IMAGE_SIZE, EVAL_STEPS_PER_SECOND
+def test_the_cost_models_measured_rates_are_the_benchmarks_results():
+    """Every measured rate in the package's rates file is what the benchmarks' results under benchmarks/results give
+    (benchmarks/refresh_rates.py derives them): a benchmark rerun with other numbers fails here until
+    `python -m benchmarks.refresh_rates` writes them. The default lockstep batch sizes are the fastest measured."""
+    from benchmarks.refresh_rates import cpu_eval_totals, cuda_evaluations, measured_rates, merged
+    from lerobot_obsbench.bench.cost import RATES
     from lerobot_obsbench.envs.vector import DEFAULT_BATCH_SIZE
 
-    measured = json.loads((REPO_ROOT / "benchmarks/results/eval_cpu.json").read_text())
-    totals = {}
+    assert merged(RATES, measured_rates()) == RATES
+    totals = cpu_eval_totals()
+    assert DEFAULT_BATCH_SIZE["cpu"] == min(totals, key=lambda n: totals[n][1])
+    fastest = min(cuda_evaluations(), key=lambda r: r["wall_s"] / r["episodes"])
+    assert DEFAULT_BATCH_SIZE["cuda"] == fastest["batch_size"]
+    assert set(RATES["eval_task_factor"]["cpu"]) == set(load_grid("cpu-suite").tasks)
+
+
+def test_refreshing_the_rates_follows_a_new_measurement_and_refuses_a_result_it_cannot_use(tmp_path):
+    """A benchmark result that changed moves its rate (named by `differences`) and no other; an evaluation whose
+    batch sizes disagreed on the episodes' outcomes gives no rate."""
+    from benchmarks.refresh_rates import RatesError, differences, measured_rates, merged
+    from lerobot_obsbench.bench.cost import RATES
+
+    results = tmp_path / "results"
+    shutil.copytree(REPO_ROOT / "benchmarks" / "results", results)
+    measured = json.loads((results / "eval_cpu.json").read_text())
     for rows in measured["with_policy"].values():
         for row in rows:
-            steps, seconds = totals.get(row["batch_size"], (0, 0.0))
-            totals[row["batch_size"]] = (steps + row["env_steps"], seconds + row["seconds"])
-            assert row["same_results_as_first"]  # every batch size gave every seed the same outcome
-    assert measured["image_size"] == EVAL_RATE_IMAGE_SIZE
-    assert EVAL_STEPS_PER_SECOND["cpu"] == {n: round(steps / seconds, 1) for n, (steps, seconds) in totals.items()}
-    assert DEFAULT_BATCH_SIZE["cpu"] == min(totals, key=lambda n: totals[n][1])
+            row["seconds"] *= 2 if row["batch_size"] == 1 else 1
+    (results / "eval_cpu.json").write_text(json.dumps(measured))
+    changed = differences(RATES, merged(RATES, measured_rates(results)))
+    halved = round(RATES["eval_steps_per_second"]["cpu"]["1"] / 2, 1)
+    before = RATES["eval_steps_per_second"]["cpu"]["1"]
+    assert len(changed) == 1 and changed[0].startswith(f"eval_steps_per_second.cpu.1: {before} -> ")
+    assert float(changed[0].split("-> ")[1]) == pytest.approx(halved, abs=0.1)
+    next(iter(measured["with_policy"].values()))[0]["same_results_as_first"] = False
+    (results / "eval_cpu.json").write_text(json.dumps(measured))
+    with pytest.raises(RatesError, match="changed the episodes' outcomes"):
+        measured_rates(results)
 
 
-def test_the_per_task_evaluation_factors_are_the_cpu_suites_measurement():
-    """The dry run's per-task evaluation factors are what benchmarks/bench_grid_cost.py measured on a clean run of
-    the cpu-suite grid (benchmarks/results/grid_cost_cpu-suite.json), and price a task's evaluations on the CPU
-    only: the cuda rates have no per-task measurement."""
+def test_per_task_evaluation_factors_price_a_tasks_evaluations_on_the_cpu_only():
     from lerobot_obsbench.bench.cost import EVAL_TASK_FACTOR, episode_seconds
 
-    measured = json.loads((REPO_ROOT / "benchmarks/results/grid_cost_cpu-suite.json").read_text())
-    assert EVAL_TASK_FACTOR == {"cpu": {task: row["factor"] for task, row in measured["evaluation"].items()}}
-    assert set(EVAL_TASK_FACTOR["cpu"]) == set(load_grid("cpu-suite").tasks)
     for task, factor in EVAL_TASK_FACTOR["cpu"].items():
         plain = episode_seconds(25, 100, "cpu", image_size=64) - 10  # the fixed start-up is not scaled
         assert episode_seconds(25, 100, "cpu", image_size=64, task=task) - 10 == pytest.approx(factor * plain)
         assert episode_seconds(25, 100, "cuda", task=task) == episode_seconds(25, 100, "cuda")
     assert episode_seconds(25, 100, "cpu", task="PushCube-v1") == episode_seconds(25, 100, "cpu")  # not measured
-
-
-def test_the_gpu_cost_model_is_the_device_checks_measurement():
-    """The dry run's cuda rates and the cuda default batch size are what benchmarks/device_check.py measured on the
-    GPU machine (benchmarks/results/device_check_cuda*.json; SpUNet-34 from the earlier train-step run on the same
-    kind of card): a new device check with other numbers fails here until the constants follow."""
-    from statistics import mean
-
-    from lerobot_obsbench.bench.cost import EVAL_STEPS_PER_SECOND, TRAIN_SAMPLES_PER_SECOND
-    from lerobot_obsbench.envs.vector import DEFAULT_BATCH_SIZE
-
-    results = REPO_ROOT / "benchmarks" / "results"
-    check, rerun = (json.loads((results / f"device_check_cuda{s}.json").read_text()) for s in ("", "_rerun"))
-    assert "H200" in check["stages"]["machine"]["nvidia_smi"] and rerun["device"] == "cuda"
-    evaluations = [rerun["stages"]["cpu_simulation"]["with_policy_one_env"], rerun["stages"]["success"]["physx_cpu"]]
-    assert EVAL_STEPS_PER_SECOND["cuda"] == {r["batch_size"]: r["env_steps_per_s"] for r in evaluations}
-    fastest = min(evaluations, key=lambda r: r["wall_s"] / r["episodes"])
-    assert DEFAULT_BATCH_SIZE["cuda"] == fastest["batch_size"]
-
-    train = check["stages"]["train_step"]
-    quick = {row["obs_space"]: row["samples_per_s"] for row in train["quick_grid"]}
-    measured = {"image": quick["rgb"], "point": quick["pointcloud"], "none": min(quick["none"], quick["state"])}
-    assert TRAIN_SAMPLES_PER_SECOND[("cuda", "cpu")] == {k: round(v, -1) for k, v in measured.items()}
-    assert TRAIN_SAMPLES_PER_SECOND[("cuda", "tiny")] == TRAIN_SAMPLES_PER_SECOND[("cuda", "cpu")]  # a bound
-    act = [row for row in train["rows"] if row["policy"] == "obs_act" and "@" not in row["encoder"]]
-    images = [row["steps_per_s"] * row["batch"] for row in act if row["obs_space"] != "pointcloud"]
-    earlier = json.loads((results / "train_step_cuda_paper.json").read_text())["rows"]
-    points = [row["steps_per_s"] * row["batch"] for row in act if row["encoder"] == "pointnet"]
-    points += [
-        r["steps_per_s"] * r["batch"] for r in earlier if r["policy"] == "obs_act" and r["encoder"] == "spunet34"
-    ]
-    assert len(images) == 6 and len(points) == 2
-    paper = TRAIN_SAMPLES_PER_SECOND[("cuda", "paper")]
-    assert (paper["image"], paper["point"]) == (round(mean(images), -1), round(mean(points), -1))
-    assert paper["none"] == paper["image"]  # not measured: the image rate bounds the blind policy's time
 
 
 def _hours(pattern: str, text: str) -> float:
@@ -679,13 +662,18 @@ def test_cpu_ranking_schedules_four_kinds_of_task_with_curves_and_fits_six_hours
     assert sorted((r.task, r.obs_space, r.seed) for r in runs) == sorted(
         (t, s, seed) for t in tasks for s in spaces for seed in (1000, 1001, 1002)
     )
-    assert {(r.budget_unit, r.budget) for r in runs} == {("steps", 10000)} and grid.eval_checkpoints == [1000, 3000]
+    longer = {"PickCube-v1", "LiftPegUpright-v1"}  # their oracle needs more steps than the pushing and pulling
+    assert all((r.budget_unit, r.budget) == ("steps", 30000 if r.task in longer else 10000) for r in runs)
+    assert {r.task: grid.curve(r) for r in runs} == {
+        **{t: (1000, 3000) for t in tasks if t not in longer},
+        **{t: (1000, 3000, 10000, 20000) for t in longer},
+    }
     for run in runs:  # each task's own crop box reaches its point-cloud runs
         workspace = dict(run.policy_overrides).get("workspace")
         assert workspace == (list(task_spec(run.task).workspace) if run.obs_space == "pointcloud" else None)
     assert main(["run", "cpu-ranking", "--dry-run", "--out", "/nonexistent/out", "--workers", "2"]) == 0
     text = capsys.readouterr().out
-    assert "48 runs, 0 already trained, 48 to train; 0 of 144 test evaluations done" in text  # 3 curve points
+    assert "48 runs, 0 already trained, 48 to train; 0 of 192 test evaluations done" in text  # 3 and 5 curve points
     assert _hours("with 2 local workers: ~HOURS h of wall time", text) <= 6.0
 
 
@@ -739,7 +727,7 @@ def test_a_learning_curve_evaluates_the_listed_checkpoints_on_the_test_seeds_and
 @pytest.mark.parametrize(
     ("changes", "message"),
     [
-        ({"eval_checkpoints": [10]}, r"eval_checkpoints \[10\] are not below the 10 steps"),
+        ({"eval_checkpoints": [10]}, r"eval_checkpoints \[10\] are not below the 10 steps of the grid's longest run"),
         ({"eval_checkpoints": [5, 5]}, "eval_checkpoints lists 5 more than once"),
         ({"eval_checkpoints": [0]}, r"eval_checkpoints\[0\] must be a whole number >= 1; got 0"),
         ({"eval_checkpoints": [2.5]}, r"eval_checkpoints\[0\] must be a whole number >= 1; got 2.5"),
@@ -749,6 +737,36 @@ def test_a_learning_curve_evaluates_the_listed_checkpoints_on_the_test_seeds_and
 def test_a_learning_curve_it_cannot_give_is_refused_when_the_grid_loads(changes, message):
     with pytest.raises(GridError, match=message):
         parse_grid({k: v for k, v in {**BASE, **changes}.items() if v is not None})
+
+
+def test_a_task_budget_changes_that_tasks_runs_alone_and_their_curve_goes_further():
+    """`task_budgets` gives a task its own budget for every space; the other tasks' runs keep their ids, and each
+    run's curve has the eval_checkpoints below its own budget."""
+    two_tasks = {**BASE, "tasks": ["PushCube-v1", "PickCube-v1"], "steps": 3000}
+    plain = parse_grid(two_tasks)
+    longer = parse_grid({**two_tasks, "task_budgets": {"PickCube-v1": 9000}, "eval_checkpoints": [1000, 5000]})
+    before = {r.run_id: r for r in plain.expand()}
+    after = longer.expand()
+    assert [r.run_id in before for r in after] == [r.task == "PushCube-v1" for r in after]
+    assert {r.task: (r.steps(), longer.curve(r)) for r in after} == {
+        "PushCube-v1": (3000, (1000,)),
+        "PickCube-v1": (9000, (1000, 5000)),
+    }
+    push = next(r for r in after if r.task == "PushCube-v1")
+    assert [s.checkpoint for s in longer.evaluations(push)] == ["last", "step:1000"]
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"task_budgets": {"StackCube-v1": 9000}}, r"unknown tasks in task_budgets \['StackCube-v1'\]"),
+        ({"task_budgets": {"PushCube-v1": 0}}, "task_budgets of PushCube-v1 must be a finite number > 0; got 0"),
+        ({"task_budgets": [9000]}, r"task_budgets maps tasks to budgets, e.g. \{PickCube-v1: 30000\}"),
+    ],
+)
+def test_a_task_budget_for_no_task_of_the_grid_or_not_a_budget_is_refused(changes, message):
+    with pytest.raises(GridError, match=message):
+        parse_grid({**BASE, **changes})
 
 
 @pytest.mark.parametrize(
