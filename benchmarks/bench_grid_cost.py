@@ -2,10 +2,11 @@
 
 Reads the grid's results file: each evaluation record's `wall_s` and each training record's `train_s`, both taken
 while the grid ran (with its workers sharing the machine), against what the model prices the same unit at with
-one worker per core (`episode_seconds` without a task factor, `train_seconds`). Per task, the evaluations' measured
-over priced seconds is the factor `bench/cost.EVAL_TASK_FACTOR` holds (tests/bench/test_bench_grid.py checks it);
-training is reported per task and space. `--wall-s` records the whole run's wall time (as `time` measured it) next
-to the dry run's estimate for the grid from nothing, before and after the factors.
+one worker per core (`episode_seconds` without a task factor, `train_seconds`). Per task, the evaluations'
+measured over priced seconds is the cost model's per-task factor (`benchmarks/refresh_rates.py` copies the
+cpu-suite's into the package's rates file); training is reported per task and space. `--wall-s` records the
+whole run's wall time (as `time` measured it) next to the dry run's estimate for the grid from nothing, before and
+after the factors.
 
     .venv/bin/python -m benchmarks.bench_grid_cost --grid cpu-suite --results outputs/bench/cpu-suite/results.jsonl
         [--wall-s 7200] [--workers 2] [--out FILE] [--overwrite]

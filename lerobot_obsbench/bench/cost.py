@@ -4,6 +4,7 @@ driver's progress line estimates a grid's ETA with it until a run reports its ow
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -14,38 +15,36 @@ from lerobot_obsbench.schema import CONTROL_SPACES, reads_points
 
 DEMO_FRAMES_PER_EPISODE = 30  # for estimates before the demonstrations exist
 
+# The measured rates, each with the machine and benchmark behind it in docs/performance.md#the-cost-model; a
+# benchmark's new measurement reaches them through `python -m benchmarks.refresh_rates`.
+RATES = json.loads(Path(__file__).with_name("rates.json").read_text())
 # Training samples per second by (device kind, preset) and space kind, for `--dry-run` estimates and a grid's ETA
-# until a run reports its own rate. Which machine measured each figure, and which figures are bounds:
-# docs/performance.md#the-cost-model; tests/bench/test_bench_grid.py holds the measured ones to their benchmark's JSON.
+# until a run reports its own rate.
 TRAIN_SAMPLES_PER_SECOND = {
-    ("cpu", "tiny"): {"image": 100.0, "point": 100.0, "none": 200.0},
-    ("cpu", "cpu"): {"image": 170.0, "point": 360.0, "none": 750.0},
-    ("cpu", "paper"): {"image": 2.5, "point": 0.5, "none": 50.0},
-    ("cuda", "tiny"): {"image": 1190.0, "point": 960.0, "none": 1450.0},
-    ("cuda", "cpu"): {"image": 1190.0, "point": 960.0, "none": 1450.0},
-    ("cuda", "paper"): {"image": 270.0, "point": 100.0, "none": 270.0},
+    (device, preset): by_space
+    for device, presets in RATES["train_samples_per_second"].items()
+    for preset, by_space in presets.items()
 }
-# Evaluation env steps per second with the policy at 64², by lockstep batch size, env start-up included (an
-# unmeasured batch size counts as the largest measured one below it); the same page says where each was measured.
-EVAL_STEPS_PER_SECOND = {"cpu": {1: 23.6, 2: 24.7, 3: 26.1, 4: 24.1}, "cuda": {1: 43.3, 16: 32.6}}
-# A task's evaluation seconds over what the rates above price (they were measured on PushCubeWide-v1), summed over
-# the evaluations of a real grid on this machine (benchmarks/bench_grid_cost.py; tests/bench/test_bench_grid.py
-# holds them to its JSON): a task's physics (a peg pushed into a hole) and policies that fail, running out each
-# episode's budget, make it larger. A task not listed, and every task on cuda, counts as 1.
-EVAL_TASK_FACTOR = {
-    "cpu": {"PushCubeWide-v1": 0.56, "PickCube-v1": 0.96, "StackCube-v1": 1.24, "PegInsertionSide-v1": 1.79},
+# Evaluation env steps per second with the policy at `EVAL_RATE_IMAGE_SIZE`, by lockstep batch size, env start-up
+# included (an unmeasured batch size counts as the largest measured one below it).
+EVAL_STEPS_PER_SECOND = {
+    device: {int(batch): rate for batch, rate in by_batch.items()}
+    for device, by_batch in RATES["eval_steps_per_second"].items()
 }
+EVAL_RATE_IMAGE_SIZE = RATES["eval_rate_image_size"]
+# A task's evaluation seconds over what the rates above price, summed over the evaluations of a real grid
+# (benchmarks/bench_grid_cost.py): a task's physics (a peg pushed into a hole) and policies that fail, running out
+# each episode's budget, make it larger. A task not listed, and every task on a device not listed, counts as 1.
+EVAL_TASK_FACTOR = RATES["eval_task_factor"]
+# The cores of the machine the cpu rates were measured on: more local workers than this share no more of its time.
+CPU_RATE_CORES = RATES["cpu_rate_cores"]
+# RLBench env steps per second, on either device: a guess.
+RLBENCH_STEPS_PER_SECOND = RATES["rlbench_steps_per_second"]
 # One line of the dry run: the machines behind the rates.
 RATES_MEASURED_ON = (
-    "rates: cpu measured on a 2-core CPU machine; cuda on one H200 with a 16-core host (model steps; evaluation on "
-    "ManiSkill's CPU simulation rendering on the GPU: its GPU simulation is not measured); per-task evaluation "
-    "factors on cpu only; docs/performance.md"
+    f"rates: cpu measured on {RATES['measured_on']['cpu']}; cuda on {RATES['measured_on']['cuda']}; per-task "
+    f"evaluation factors on {', '.join(EVAL_TASK_FACTOR)} only; docs/performance.md"
 )
-EVAL_RATE_IMAGE_SIZE = 64
-# The cores of the machine the cpu rates were measured on: more local workers than this share no more of its time.
-CPU_RATE_CORES = 2
-# RLBench env steps per second, on either device: a guess (docs/performance.md#the-cost-model).
-RLBENCH_STEPS_PER_SECOND = {"cpu": 1.0, "cuda": 1.0}
 # The device kinds a plan is priced on, each as one worker: the whole 2-core CPU machine, or one GPU.
 DEVICE_KINDS = ("cpu", "cuda")
 
