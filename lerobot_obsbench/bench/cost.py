@@ -8,7 +8,8 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from lerobot_obsbench.bench.grid import EvalSpec, Grid, RunSpec
+from lerobot_obsbench.bench.grid import Grid
+from lerobot_obsbench.bench.specs import EvalSpec, RunSpec
 from lerobot_obsbench.bench.units import demo_dir, demo_frames, demos_recorded
 from lerobot_obsbench.envs.base_task import task_spec
 from lerobot_obsbench.schema import CONTROL_SPACES, reads_points

@@ -6,218 +6,47 @@ checkpoint selection).
 perturbation or field: a `GridError` listing the valid choices). `Grid.expand()` gives one `RunSpec` per
 training run and `Grid.evaluations(run)` the `EvalSpec`s of its test evaluations.
 
-Identity: a run is what it trains (`RunSpec.run_id`, the SHA-256 of the training config); an evaluation is a
-record against a run (`EvalSpec.eval_id`: run id + checkpoint, seed split, episodes, perturbation, episode
-budget). Adding a perturbation or episodes to a finished grid evaluates the existing checkpoints and trains
-nothing; how often checkpoints are saved is not part of a run's identity (it does not change the weights).
-
-Training budgets, exactly one per policy, each a number or a mapping policy -> number:
-- `steps`: optimizer steps;
-- `samples`: training samples (steps x batch size);
-- `demo_epochs`: the paper's epochs — one randomly sampled frame per demonstration per epoch, so
-  steps = ceil(demo_epochs x demos / batch size);
-- `frame_epochs`: passes over every frame of every demonstration (steps depend on the episodes' lengths).
+What a run and an evaluation are, and their ids: bench/specs.py; the checks: bench/grid_checks.py.
 """
 
 from __future__ import annotations
 
-import hashlib
 import itertools
 import json
-import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import yaml
 
+from lerobot_obsbench.bench.grid_checks import (
+    as_list,
+    check_listed_once,
+    check_tasks,
+    check_values,
+    choose,
+    refuse_named_policies,
+    resolve_augmentations,
+    resolve_encoders,
+)
 from lerobot_obsbench.bench.package_data import GRIDS, path_or_shipped, shipped
-from lerobot_obsbench.envs.base_task import TASKS, TaskError, check_cameras, task_spec
+from lerobot_obsbench.bench.specs import (
+    AXIS_FIELDS,
+    BUDGET_UNITS,
+    CLIP_GOAL,
+    RLBENCH_CONTROL_MODE,
+    EvalSpec,
+    GridError,
+    RunSpec,
+)
+from lerobot_obsbench.envs.base_task import TaskError, check_cameras, task_spec
 from lerobot_obsbench.envs.maniskill import DEFAULT_CONTROL_MODE
 from lerobot_obsbench.envs.perturbations import parse_perturbation
-from lerobot_obsbench.errors import ObsBenchError
-from lerobot_obsbench.numeric import check_number, check_numbers
-from lerobot_obsbench.presets import PRESETS, policy_flags, preset_args, preset_encoder
+from lerobot_obsbench.presets import PRESETS
 from lerobot_obsbench.rlbench.evaluate import MAX_STEPS as RLBENCH_MAX_STEPS
 from lerobot_obsbench.rlbench.evaluate import camera_view_for
-from lerobot_obsbench.rlbench.paper_tasks import CAMERAS as RLBENCH_CAMERAS
-from lerobot_obsbench.rlbench.paper_tasks import IMAGE_SIZE as RLBENCH_IMAGE_SIZE
 from lerobot_obsbench.rlbench.paper_tasks import WORKSPACE as RLBENCH_WORKSPACE
-from lerobot_obsbench.rlbench.paper_tasks import RLBenchTaskError, grid_task_name, rlbench_task
-from lerobot_obsbench.schema import CONTROL_SPACES, MIN_IMAGE_SIZE, OBS_SPACES, POLICY_TYPES, reads_points
-
-BUDGET_UNITS = {
-    "steps": "optimizer steps",
-    "samples": "training samples (optimizer steps x batch size)",
-    "demo_epochs": "the paper's epochs: one randomly sampled frame per demonstration per epoch",
-    "frame_epochs": "passes over every frame of every demonstration",
-}
-
-
-RLBENCH_CONTROL_MODE = "ee_pose_planning"  # RLBench's EndEffectorPoseViaPlanning, absolute world-frame poses
-CLIP_GOAL = "clip_vit_b16"  # the language goal's encoder, as RLBench runs record it
-
-
-# --policy.* fields a grid sets through its own axes and options: an override of one would train another value
-# than the run's id and results record
-AXIS_FIELDS = {
-    "type": "policies",
-    "obs_space": "obs_spaces",
-    "encoder": "encoders",
-    "augment": "augmentations",
-    "optimizer_lr": "learning_rates",
-    "cameras": "cameras",
-    "device": "`obsbench run --device`",
-}
-
-
-class GridError(ObsBenchError, ValueError):
-    """A grid file names something that does not exist or does not fit together."""
-
-
-def _digest(config: dict) -> str:
-    canonical = json.dumps(config, sort_keys=True, separators=(",", ":"), default=str)
-    return hashlib.sha256(canonical.encode()).hexdigest()[:16]
-
-
-@dataclass(frozen=True)
-class RunSpec:
-    """One training run: everything that determines the trained weights."""
-
-    task: str
-    obs_space: str
-    encoder: str
-    policy: str
-    seed: int
-    lr: float
-    demos: int
-    preset: str
-    batch_size: int
-    budget_unit: str  # one of BUDGET_UNITS
-    budget: float
-    image_size: int
-    cameras: tuple[str, ...]
-    control_mode: str
-    policy_overrides: tuple[tuple[str, object], ...] = ()
-    # RLBench: the text encoder of the language goal the demonstrations carry ("" = none)
-    language_goal: str = ""
-    # the training augmentation recipe (`--policy.augment`; "" = none)
-    augment: str = ""
-
-    def config(self) -> dict:
-        data = asdict(self)
-        data["cameras"] = list(self.cameras)
-        data["policy_overrides"] = dict(self.policy_overrides)
-        for name in ("language_goal", "augment"):  # added later: left out at their default, so older runs keep ids
-            if not data[name]:
-                del data[name]
-        return data
-
-    @property
-    def run_id(self) -> str:
-        return _digest(self.config())
-
-    def policy_args(self) -> list[str]:
-        """The `--policy.<field>=<value>` arguments lerobot-train gets for this run (all but its type and device),
-        as lerobot-train's parser reads them: each field once, the run's own values (its axes and overrides) over
-        the preset's."""
-        overrides = dict(self.policy_overrides)
-        sizes = preset_args(
-            self.preset, self.policy, self.obs_space, self.encoder, user_fields={*AXIS_FIELDS, *overrides}
-        )
-        return [
-            f"--policy.obs_space={self.obs_space}",
-            *sizes,
-            f"--policy.encoder={self.encoder}",
-            f"--policy.cameras=[{','.join(self.cameras)}]",
-            *policy_flags(overrides),
-            *([f"--policy.augment={self.augment}"] if self.augment else []),
-            f"--policy.optimizer_lr={self.lr}",
-        ]
-
-    @property
-    def method(self) -> str:
-        """Column label in reports: what differs between the compared methods (the recipe, where there is one)."""
-        return f"{self.policy}/{self.obs_space}/{self.encoder}" + (f"/{self.augment}" if self.augment else "")
-
-    @property
-    def demo_key(self) -> str:
-        """Runs sharing this key train on (a prefix of) the same demonstration dataset."""
-        key = f"{self.task}-{self.image_size}px-{'+'.join(self.cameras)}-{self.control_mode}"
-        return key.replace("/", "_") + (f"-{self.language_goal}" if self.language_goal else "")
-
-    @property
-    def rlbench_task(self) -> str | None:
-        """The RLBench task this run trains on, None for a ManiSkill task."""
-        return grid_task_name(self.task)
-
-    def steps(self, demo_frames: int | None = None) -> int:
-        """Optimizer steps of the budget; `demo_frames` (frames in the run's demonstrations) is needed for
-        frame_epochs only."""
-        if self.budget_unit == "steps":
-            return max(1, int(self.budget))
-        if self.budget_unit == "samples":
-            return max(1, math.ceil(self.budget / self.batch_size))
-        if self.budget_unit == "demo_epochs":
-            return max(1, math.ceil(self.budget * self.demos / self.batch_size))
-        if demo_frames is None:
-            raise GridError("frame_epochs budgets need the demonstrations' frame count")
-        return max(1, math.ceil(self.budget * demo_frames / self.batch_size))
-
-    @classmethod
-    def from_config(cls, config: dict) -> RunSpec:
-        data = dict(config)
-        data["cameras"] = tuple(data["cameras"])
-        data["policy_overrides"] = tuple(sorted(data.get("policy_overrides", {}).items()))
-        return cls(**data)
-
-
-@dataclass(frozen=True)
-class EvalSpec:
-    """One evaluation of a run's checkpoint: `checkpoint` is "last", "best" (the best on the validation seeds)
-    or "step:N"; `split` the seed list ("test": 0, 1, ...; "validation": 10000, ...)."""
-
-    run_id: str
-    checkpoint: str
-    split: str
-    episodes: int
-    perturbation: str  # "none" or kind:value
-    max_steps: int  # episode budget
-
-    def config(self) -> dict:
-        return asdict(self)
-
-    @property
-    def eval_id(self) -> str:
-        return _digest(self.config())
-
-
-def _as_list(value, name: str) -> list:
-    if value is None:
-        raise GridError(f"grid field {name!r} is required")
-    values = list(value) if isinstance(value, (list, tuple)) else [value]
-    if not values:
-        raise GridError(f"grid field {name!r} is empty: it needs at least one value")
-    return values
-
-
-def _named_policies_in_grid_terms(policies: list, name: str) -> None:
-    """A named type (act_pcd, ...) is one policy type, space and encoder; a grid lists those on their own axes."""
-    from lerobot_obsbench.policies.named import NAMED_POLICIES
-
-    named = next((p for p in policies if p in NAMED_POLICIES), None)
-    if named is not None:
-        policy, space, encoder = NAMED_POLICIES[named]
-        raise GridError(
-            f"{name}: policies lists {named}, a named type; a grid sets its parts on their own axes: "
-            f"policies: [{policy}], obs_spaces: [{space}], encoders: {{{space}: [{encoder}]}}"
-        )
-
-
-def _choose(values: list, valid, name: str) -> list:
-    bad = [v for v in values if v not in valid]
-    if bad:
-        raise GridError(f"unknown {name} {bad}; valid choices: {', '.join(valid)}")
-    return values
+from lerobot_obsbench.rlbench.paper_tasks import grid_task_name
+from lerobot_obsbench.schema import CONTROL_SPACES, OBS_SPACES, POLICY_TYPES, reads_points
 
 
 @dataclass
@@ -381,153 +210,6 @@ GRID_FIELDS = set(Grid.__dataclass_fields__)
 PER_POLICY = ("batch_size", "checkpoints", *BUDGET_UNITS)
 
 
-def _resolve_encoders(spec, spaces: list[str], preset: str, name: str) -> dict[str, list[str]]:
-    """`encoders` may be omitted (the preset's choice per space), a list (each space takes the listed
-    encoders that accept it; every listed encoder must fit some space) or a mapping space -> encoders (strict)."""
-    from lerobot_obsbench.encoders import available_encoders, check_encoder, encoder_info
-
-    if spec is None:
-        return {s: [preset_encoder(preset, s)] for s in spaces}
-    if isinstance(spec, dict):
-        _check_spaces_listed(spec, spaces, "encoders", name)
-        resolved = {}
-        for space in spaces:
-            names = _as_list(spec.get(space, preset_encoder(preset, space)), f"encoders.{space}")
-            _check_listed_once(names, f"encoders.{space}", name)
-            for name in names:
-                try:
-                    check_encoder(name, space)
-                except ValueError as err:
-                    raise GridError(str(err)) from None
-            resolved[space] = names
-        return resolved
-    names = _as_list(spec, "encoders")
-    _check_listed_once(names, "encoders", name)
-    _choose(names, available_encoders(), "encoders")
-    resolved = {s: [n for n in names if s in encoder_info(n).spaces] for s in spaces}
-    for space, chosen in resolved.items():
-        if not chosen and space in CONTROL_SPACES:
-            resolved[space] = [preset_encoder(preset, space)]  # the controls need no encoder listed
-        elif not chosen:
-            raise GridError(
-                f"no listed encoder accepts obs_space {space!r}; encoders for it: "
-                f"{', '.join(available_encoders(space))}"
-            )
-    for name in names:
-        if not any(name in resolved[s] for s in spaces):
-            raise GridError(
-                f"encoder {name!r} accepts none of the grid's obs_spaces {spaces} (it accepts "
-                f"{', '.join(encoder_info(name).spaces)})"
-            )
-    return resolved
-
-
-def _check_spaces_listed(mapping: dict, spaces: list[str], field_name: str, name: str) -> None:
-    """A per-space mapping names only the grid's spaces."""
-    extra = [s for s in mapping if s not in spaces]
-    if extra:
-        raise GridError(f"{name}: {field_name} names spaces {extra} that are not in obs_spaces {spaces}")
-
-
-def _resolve_augmentations(spec, spaces: list[str], name: str) -> dict[str, list[str]]:
-    """`augmentations`: a mapping space -> recipes (`--policy.augment` values, "" or null for none), each recipe
-    checked against its space and normalised, so one recipe written two ways is refused as listed twice."""
-    from lerobot_obsbench.augmentations import AugmentationError, normalised_recipe
-
-    if spec is None:
-        return {}
-    if not isinstance(spec, dict):
-        raise GridError(f"{name}: augmentations maps spaces to recipes, e.g. {{rgb: ['', random_shift]}}; got {spec!r}")
-    _check_spaces_listed(spec, spaces, "augmentations", name)
-    resolved = {}
-    for space, written in spec.items():
-        written = ["" if r is None else r for r in _as_list(written, f"augmentations.{space}")]
-        recipes = []
-        for recipe in written:
-            if not isinstance(recipe, str):
-                raise GridError(f"{name}: augmentations.{space} lists recipes as text; got {recipe!r}")
-            try:
-                recipes.append(normalised_recipe(recipe, space))
-            except AugmentationError as err:
-                raise GridError(f"{name}: augmentations.{space}: {err}") from None
-        _check_listed_once(recipes, f"augmentations.{space}", name, written)
-        resolved[space] = recipes
-    return resolved
-
-
-def _check_listed_once(values: list, field_name: str, name: str, written: list | None = None) -> None:
-    """An axis lists each of its values once (`written`: the values as the file spells them, where the grid
-    normalises them); a repeated value is one point of the grid given twice."""
-    repeated = sorted({json.dumps(v) for v in values if values.count(v) > 1})
-    if repeated:
-        spelling = f" (written {written})" if written is not None and written != values else ""
-        raise GridError(
-            f"{name}: {field_name} lists {', '.join(repeated)} more than once{spelling}; each value is one point of "
-            "the grid (listed twice, it would train the same runs twice): list it once"
-        )
-
-
-# Numeric grid fields and their bounds, as lerobot_obsbench.numeric.check_number (the project's one rule for
-# numbers) takes them; lists and per-policy mappings are checked value by value. Booleans and strings are refused
-# (YAML reads `steps: '5'` as a string).
-NUMERIC_FIELDS = {
-    "seeds": {"whole": True, "minimum": 0},
-    "demos": {"whole": True, "minimum": 1},
-    "learning_rates": {"above": 0},
-    "steps": {"above": 0},
-    "samples": {"above": 0},
-    "demo_epochs": {"above": 0},
-    "frame_epochs": {"above": 0},
-    "task_budgets": {"above": 0},
-    "batch_size": {"whole": True, "minimum": 1},
-    "checkpoints": {"whole": True, "minimum": 1},
-    "validation_episodes": {"whole": True, "minimum": 0},
-    "image_size": {"whole": True, "minimum": MIN_IMAGE_SIZE},
-    "eval_episodes": {"whole": True, "minimum": 1},
-    "eval_batch_size": {"whole": True, "minimum": 1},
-    "episode_length": {"whole": True, "minimum": 1},
-    "held_out_demos": {"whole": True, "minimum": 0},
-    "eval_checkpoints": {"whole": True, "minimum": 1},
-}
-TEXT_LIST_FIELDS = ("cameras", "perturbations")
-
-
-def _checked_number(value, label: str, bounds: dict):
-    """`value` of a numeric grid field (a number, a list or a per-policy or per-task mapping of them) as
-    check_number gives it back: a whole number written 2.0 is 2, so it names the same runs as 2."""
-    if isinstance(value, dict):
-        return {key: check_number(f"{label} of {key}", v, error=GridError, **bounds) for key, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return list(check_numbers(label, value, error=GridError, **bounds))
-    return check_number(label, value, error=GridError, **bounds)
-
-
-def _check_values(values: dict, name: str) -> None:
-    """Type and range of every numeric and text field, before anything is built or run; each number in `values` is
-    replaced by its checked value."""
-    for key, bounds in NUMERIC_FIELDS.items():
-        if values.get(key) is not None:
-            values[key] = _checked_number(values[key], f"{name}: {key}", bounds)
-    for key in TEXT_LIST_FIELDS:
-        value = values.get(key, [])
-        if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
-            raise GridError(f"{name}: {key} is a list of names, e.g. [base_camera]; got {value!r}")
-    for key in ("name", "description", "preset", "control_mode", "checkpoints_from", "rlbench_data", "clip_weights"):
-        if key in values and values[key] is not None and not isinstance(values[key], str):
-            raise GridError(f"{name}: {key} is text; got {values[key]!r}")
-    for key in ("tasks", "obs_spaces", "policies", *NUMERIC_FIELDS, *TEXT_LIST_FIELDS):
-        if isinstance(values.get(key), list):
-            _check_listed_once(values[key], key, name)
-    if not isinstance(values.get("policy_overrides", {}), dict):
-        raise GridError(f"{name}: policy_overrides is a mapping of --policy.* fields to values")
-    per_space = values.get("space_overrides", {})
-    if not isinstance(per_space, dict) or not all(isinstance(v, dict) for v in per_space.values()):
-        raise GridError(
-            f"{name}: space_overrides maps spaces to --policy.* fields, e.g. {{rgb: {{encoder_norm: batch}}}}"
-        )
-    _check_spaces_listed(per_space, values.get("obs_spaces", []), "space_overrides", name)
-
-
 # the fields parse_grid turns into their values itself; every other grid field passes to Grid as written
 PARSED_FIELDS = frozenset(
     "name tasks obs_spaces policies seeds learning_rates demos preset encoders augmentations".split()
@@ -538,24 +220,24 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
     _check_field_names(data, name)
     values = dict(data)
     values.setdefault("name", name)
-    tasks = _as_list(values.get("tasks"), "tasks")
-    rlbench = _check_tasks(values, tasks, name)
-    spaces = _choose(_as_list(values.get("obs_spaces"), "obs_spaces"), list(OBS_SPACES), "obs_spaces")
-    policies = _as_list(values.get("policies", ["obs_act"]), "policies")
-    _named_policies_in_grid_terms(policies, name)
-    _choose(policies, list(POLICY_TYPES), "policies")
+    tasks = as_list(values.get("tasks"), "tasks")
+    rlbench = check_tasks(values, tasks, name)
+    spaces = choose(as_list(values.get("obs_spaces"), "obs_spaces"), list(OBS_SPACES), "obs_spaces")
+    policies = as_list(values.get("policies", ["obs_act"]), "policies")
+    refuse_named_policies(policies, name)
+    choose(policies, list(POLICY_TYPES), "policies")
     preset = values.get("preset", "cpu")
-    _choose([preset], list(PRESETS), "preset")
+    choose([preset], list(PRESETS), "preset")
     for key in PER_POLICY:
         if isinstance(values.get(key), dict):
-            _choose(list(values[key]), list(policies), f"policies in {key}")
+            choose(list(values[key]), list(policies), f"policies in {key}")
     task_budgets = values.get("task_budgets", {})
     if not isinstance(task_budgets, dict):
         raise GridError(
             f"{name}: task_budgets maps tasks to budgets, e.g. {{PickCube-v1: 30000}}; got {task_budgets!r}"
         )
-    _choose(list(task_budgets), tasks, "tasks in task_budgets")
-    _check_values(values, name)
+    choose(list(task_budgets), tasks, "tasks in task_budgets")
+    check_values(values, name)
     for task in [] if rlbench else tasks:
         try:
             check_cameras(task_spec(task), values.get("cameras", ["base_camera"]))
@@ -566,12 +248,12 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
         tasks=tasks,
         obs_spaces=spaces,
         policies=policies,
-        seeds=_as_list(values.get("seeds", [1000]), "seeds"),
-        learning_rates=[float(lr) for lr in _as_list(values.get("learning_rates", [1e-4]), "learning_rates")],
-        demos=_as_list(values.get("demos", [100]), "demos"),
+        seeds=as_list(values.get("seeds", [1000]), "seeds"),
+        learning_rates=[float(lr) for lr in as_list(values.get("learning_rates", [1e-4]), "learning_rates")],
+        demos=as_list(values.get("demos", [100]), "demos"),
         preset=preset,
-        encoders=_resolve_encoders(values.get("encoders"), spaces, preset, name),
-        augmentations=_resolve_augmentations(values.get("augmentations"), spaces, name),
+        encoders=resolve_encoders(values.get("encoders"), spaces, preset, name),
+        augmentations=resolve_augmentations(values.get("augmentations"), spaces, name),
         **{k: values[k] for k in GRID_FIELDS - PARSED_FIELDS if k in values},
     )
     _check_grid(grid, bool(rlbench), name)
@@ -590,21 +272,6 @@ def _check_field_names(data, name: str) -> None:
     unknown = sorted(set(data) - GRID_FIELDS)
     if unknown:
         raise GridError(f"{name}: unknown grid fields {unknown}; valid fields: {', '.join(sorted(GRID_FIELDS))}")
-
-
-def _check_tasks(values: dict, tasks: list, name: str) -> list[str]:
-    """The grid's tasks: all RLBench tasks (returned) or all ManiSkill tasks (then no RLBench-only field)."""
-    rlbench = [t for t in tasks if isinstance(t, str) and grid_task_name(t) is not None]
-    if rlbench:
-        _check_rlbench(values, tasks, rlbench, name)
-        return rlbench
-    _choose(tasks, list(TASKS), "tasks")
-    for task in tasks:
-        task_spec(task)
-    given = [k for k in ("rlbench_data", "clip_weights") if values.get(k) is not None]
-    if given:
-        raise GridError(f"{name}: {', '.join(given)} only apply to RLBench tasks (rlbench/<task>); the grid has none")
-    return rlbench
 
 
 def _check_grid(grid: Grid, rlbench: bool, name: str) -> None:
@@ -632,7 +299,7 @@ def _check_grid(grid: Grid, rlbench: bool, name: str) -> None:
         )
     if not grid.variants or not all(isinstance(v, dict) for v in grid.variants):
         raise GridError(f"{name}: variants is a list of mappings of --policy.* fields, e.g. [{{}}, {{sampling: pre}}]")
-    _check_listed_once(grid.variants, "variants", name)
+    check_listed_once(grid.variants, "variants", name)
     _check_curve(grid, name)
     for where, fields in (
         ("policy_overrides", grid.policy_overrides),
@@ -667,43 +334,6 @@ def _check_curve(grid: Grid, name: str) -> None:
             f"{name}: eval_checkpoints {late} are not below the {longest} steps of the grid's longest run (the "
             "last checkpoint ends every curve); list earlier steps"
         )
-
-
-def _check_rlbench(values: dict, tasks: list, rlbench: list[str], name: str) -> None:
-    """An RLBench grid: every task an RLBench task the importer knows, its data folder named, its cameras
-    RLBench's, and no ManiSkill-only setting given (each would otherwise be ignored)."""
-    others = [t for t in tasks if t not in rlbench]
-    if others:
-        raise GridError(
-            f"{name}: RLBench and ManiSkill tasks in one grid ({rlbench[0]} and {others[0]}); they differ in cameras, "
-            "image size and episode budget: put each simulator's tasks in a grid of its own"
-        )
-    for task in rlbench:
-        try:
-            rlbench_task(grid_task_name(task))
-        except RLBenchTaskError as err:
-            raise GridError(f"{name}: {err}") from None
-    if not values.get("rlbench_data"):
-        raise GridError(
-            f"{name}: RLBench tasks need `rlbench_data: DIR`, PerAct's pre-generated data (DIR/train/<task> and "
-            "DIR/test/<task>, plus DIR/val/<task> for validation_episodes)"
-        )
-    values.setdefault("cameras", ["front"])  # the paper's RLBench camera
-    bad = [c for c in values["cameras"] if c not in RLBENCH_CAMERAS] if isinstance(values["cameras"], list) else []
-    if bad:
-        raise GridError(f"{name}: cameras {bad} are not RLBench's; choose from {', '.join(RLBENCH_CAMERAS)}")
-    if values.get("image_size", RLBENCH_IMAGE_SIZE) != RLBENCH_IMAGE_SIZE:
-        raise GridError(
-            f"{name}: image_size {values['image_size']!r}: RLBench grids train on PerAct's data as rendered, "
-            f"{RLBENCH_IMAGE_SIZE} x {RLBENCH_IMAGE_SIZE}; leave image_size out"
-        )
-    for key in ("control_mode", "held_out_demos", "eval_batch_size"):
-        if values.get(key):
-            raise GridError(
-                f"{name}: {key} does not apply to RLBench tasks (they act by end-effector pose planning, are "
-                "evaluated one episode at a time in CoppeliaSim, and the held-out diagnostics replay ManiSkill "
-                "demonstrations); leave it out"
-            )
 
 
 def check_policy_configs(grid: Grid, name: str) -> None:

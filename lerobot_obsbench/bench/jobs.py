@@ -10,7 +10,7 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from lerobot_obsbench.bench.grid import EvalSpec, RunSpec
+from lerobot_obsbench.bench.specs import EvalSpec, RunSpec
 from lerobot_obsbench.bench.units import demos_unit, eval_unit, train_unit
 
 

@@ -160,7 +160,7 @@ def by_kind(records: list[dict], kind: str) -> list[dict]:
 def upgrade_v1(record: dict) -> list[dict]:
     """A 0.1 record -> its train record and one eval record per evaluation (the last checkpoint, test seeds,
     each task's own episode budget, which is what 0.1 ran)."""
-    from lerobot_obsbench.bench.grid import EvalSpec, RunSpec
+    from lerobot_obsbench.bench.specs import EvalSpec, RunSpec
     from lerobot_obsbench.envs.base_task import task_spec
 
     old = dict(record["config"])

@@ -27,9 +27,10 @@ from lerobot_obsbench.bench.cost import (
     train_seconds,
 )
 from lerobot_obsbench.bench.engines import make_engine
-from lerobot_obsbench.bench.grid import BUDGET_UNITS, EvalSpec, Grid, GridError, RunSpec
+from lerobot_obsbench.bench.grid import Grid
 from lerobot_obsbench.bench.jobs import DemoJob, EvalJob, Job, TrainJob, WorkQueue
 from lerobot_obsbench.bench.results import RESULTS_FILE, append_result, by_kind, read_results
+from lerobot_obsbench.bench.specs import BUDGET_UNITS, EvalSpec, GridError, RunSpec
 from lerobot_obsbench.bench.units import demo_dir, demos_recorded, evaluation_progress, run_dir, training_progress
 from lerobot_obsbench.envs.base_task import TASKS, asset_help, missing_assets, task_spec
 from lerobot_obsbench.envs.vector import default_batch_size

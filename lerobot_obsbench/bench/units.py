@@ -35,7 +35,7 @@ from datetime import UTC, datetime
 from importlib import metadata
 from pathlib import Path
 
-from lerobot_obsbench.bench.grid import EvalSpec, RunSpec
+from lerobot_obsbench.bench.specs import EvalSpec, RunSpec
 from lerobot_obsbench.errors import ObsBenchError
 from lerobot_obsbench.rlbench.paper_tasks import grid_task_name
 from lerobot_obsbench.schema import LOCAL_REPO_ID

@@ -66,8 +66,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lerobot_obsbench.bench.grid import GridError, load_grid
+    from lerobot_obsbench.bench.grid import load_grid
     from lerobot_obsbench.bench.runner import run_grid
+    from lerobot_obsbench.bench.specs import GridError
 
     grid = load_grid(args.grid)
     for flag, value in (("--rlbench-data", args.rlbench_data), ("--clip-weights", args.clip_weights)):

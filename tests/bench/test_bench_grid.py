@@ -10,17 +10,10 @@ import numpy as np
 import pytest
 import yaml
 
-from lerobot_obsbench.bench.grid import (
-    AXIS_FIELDS,
-    NUMERIC_FIELDS,
-    EvalSpec,
-    GridError,
-    RunSpec,
-    load_grid,
-    parse_grid,
-    preset_grids,
-)
+from lerobot_obsbench.bench.grid import load_grid, parse_grid, preset_grids
+from lerobot_obsbench.bench.grid_checks import NUMERIC_FIELDS
 from lerobot_obsbench.bench.results import append_result
+from lerobot_obsbench.bench.specs import AXIS_FIELDS, EvalSpec, GridError, RunSpec
 from lerobot_obsbench.bench.units import demo_dir, kept_checkpoints, save_freq, train_command
 from lerobot_obsbench.cli import main
 from lerobot_obsbench.envs.base_task import task_spec

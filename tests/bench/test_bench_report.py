@@ -441,8 +441,8 @@ def test_runs_differing_in_any_trained_field_are_separate_columns():
     "2 seeds" (a budget or batch size edited and re-run into the same --out used to pool)."""
     from dataclasses import replace
 
-    from lerobot_obsbench.bench.grid import RunSpec
     from lerobot_obsbench.bench.report import NOT_LABEL_FIELDS
+    from lerobot_obsbench.bench.specs import RunSpec
 
     base = RunSpec("T", "rgb", "e", "obs_act", 0, 1e-3, 10, "cpu", 16, "steps", 100, 64, ("cam",), "pd_ee_delta_pose")
     changed = {

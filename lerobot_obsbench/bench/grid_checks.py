@@ -1,0 +1,245 @@
+"""The checks a grid file passes before anything runs: each field's type and range (the project's one rule for
+numbers, lerobot_obsbench.numeric), the names it lists against the registries (tasks, spaces, encoders, recipes,
+policies), and what only the whole grid can tell (one budget per policy, curves, overrides of an axis). Each
+refusal is a `GridError` naming the field and the valid choices."""
+
+from __future__ import annotations
+
+import json
+
+from lerobot_obsbench.bench.specs import GridError
+from lerobot_obsbench.envs.base_task import TASKS, task_spec
+from lerobot_obsbench.numeric import check_number, check_numbers
+from lerobot_obsbench.presets import preset_encoder
+from lerobot_obsbench.rlbench.paper_tasks import CAMERAS as RLBENCH_CAMERAS
+from lerobot_obsbench.rlbench.paper_tasks import IMAGE_SIZE as RLBENCH_IMAGE_SIZE
+from lerobot_obsbench.rlbench.paper_tasks import RLBenchTaskError, grid_task_name, rlbench_task
+from lerobot_obsbench.schema import CONTROL_SPACES, MIN_IMAGE_SIZE
+
+
+def as_list(value, name: str) -> list:
+    if value is None:
+        raise GridError(f"grid field {name!r} is required")
+    values = list(value) if isinstance(value, (list, tuple)) else [value]
+    if not values:
+        raise GridError(f"grid field {name!r} is empty: it needs at least one value")
+    return values
+
+
+def refuse_named_policies(policies: list, name: str) -> None:
+    """A named type (act_pcd, ...) is one policy type, space and encoder; a grid lists those on their own axes."""
+    from lerobot_obsbench.policies.named import NAMED_POLICIES
+
+    named = next((p for p in policies if p in NAMED_POLICIES), None)
+    if named is not None:
+        policy, space, encoder = NAMED_POLICIES[named]
+        raise GridError(
+            f"{name}: policies lists {named}, a named type; a grid sets its parts on their own axes: "
+            f"policies: [{policy}], obs_spaces: [{space}], encoders: {{{space}: [{encoder}]}}"
+        )
+
+
+def choose(values: list, valid, name: str) -> list:
+    bad = [v for v in values if v not in valid]
+    if bad:
+        raise GridError(f"unknown {name} {bad}; valid choices: {', '.join(valid)}")
+    return values
+
+
+def resolve_encoders(spec, spaces: list[str], preset: str, name: str) -> dict[str, list[str]]:
+    """`encoders` may be omitted (the preset's choice per space), a list (each space takes the listed
+    encoders that accept it; every listed encoder must fit some space) or a mapping space -> encoders (strict)."""
+    from lerobot_obsbench.encoders import available_encoders, check_encoder, encoder_info
+
+    if spec is None:
+        return {s: [preset_encoder(preset, s)] for s in spaces}
+    if isinstance(spec, dict):
+        _check_spaces_listed(spec, spaces, "encoders", name)
+        resolved = {}
+        for space in spaces:
+            names = as_list(spec.get(space, preset_encoder(preset, space)), f"encoders.{space}")
+            check_listed_once(names, f"encoders.{space}", name)
+            for name in names:
+                try:
+                    check_encoder(name, space)
+                except ValueError as err:
+                    raise GridError(str(err)) from None
+            resolved[space] = names
+        return resolved
+    names = as_list(spec, "encoders")
+    check_listed_once(names, "encoders", name)
+    choose(names, available_encoders(), "encoders")
+    resolved = {s: [n for n in names if s in encoder_info(n).spaces] for s in spaces}
+    for space, chosen in resolved.items():
+        if not chosen and space in CONTROL_SPACES:
+            resolved[space] = [preset_encoder(preset, space)]  # the controls need no encoder listed
+        elif not chosen:
+            raise GridError(
+                f"no listed encoder accepts obs_space {space!r}; encoders for it: "
+                f"{', '.join(available_encoders(space))}"
+            )
+    for name in names:
+        if not any(name in resolved[s] for s in spaces):
+            raise GridError(
+                f"encoder {name!r} accepts none of the grid's obs_spaces {spaces} (it accepts "
+                f"{', '.join(encoder_info(name).spaces)})"
+            )
+    return resolved
+
+
+def _check_spaces_listed(mapping: dict, spaces: list[str], field_name: str, name: str) -> None:
+    """A per-space mapping names only the grid's spaces."""
+    extra = [s for s in mapping if s not in spaces]
+    if extra:
+        raise GridError(f"{name}: {field_name} names spaces {extra} that are not in obs_spaces {spaces}")
+
+
+def resolve_augmentations(spec, spaces: list[str], name: str) -> dict[str, list[str]]:
+    """`augmentations`: a mapping space -> recipes (`--policy.augment` values, "" or null for none), each recipe
+    checked against its space and normalised, so one recipe written two ways is refused as listed twice."""
+    from lerobot_obsbench.augmentations import AugmentationError, normalised_recipe
+
+    if spec is None:
+        return {}
+    if not isinstance(spec, dict):
+        raise GridError(f"{name}: augmentations maps spaces to recipes, e.g. {{rgb: ['', random_shift]}}; got {spec!r}")
+    _check_spaces_listed(spec, spaces, "augmentations", name)
+    resolved = {}
+    for space, written in spec.items():
+        written = ["" if r is None else r for r in as_list(written, f"augmentations.{space}")]
+        recipes = []
+        for recipe in written:
+            if not isinstance(recipe, str):
+                raise GridError(f"{name}: augmentations.{space} lists recipes as text; got {recipe!r}")
+            try:
+                recipes.append(normalised_recipe(recipe, space))
+            except AugmentationError as err:
+                raise GridError(f"{name}: augmentations.{space}: {err}") from None
+        check_listed_once(recipes, f"augmentations.{space}", name, written)
+        resolved[space] = recipes
+    return resolved
+
+
+def check_listed_once(values: list, field_name: str, name: str, written: list | None = None) -> None:
+    """An axis lists each of its values once (`written`: the values as the file spells them, where the grid
+    normalises them); a repeated value is one point of the grid given twice."""
+    repeated = sorted({json.dumps(v) for v in values if values.count(v) > 1})
+    if repeated:
+        spelling = f" (written {written})" if written is not None and written != values else ""
+        raise GridError(
+            f"{name}: {field_name} lists {', '.join(repeated)} more than once{spelling}; each value is one point of "
+            "the grid (listed twice, it would train the same runs twice): list it once"
+        )
+
+
+# Numeric grid fields and their bounds, as lerobot_obsbench.numeric.check_number (the project's one rule for
+# numbers) takes them; lists and per-policy mappings are checked value by value. Booleans and strings are refused
+# (YAML reads `steps: '5'` as a string).
+NUMERIC_FIELDS = {
+    "seeds": {"whole": True, "minimum": 0},
+    "demos": {"whole": True, "minimum": 1},
+    "learning_rates": {"above": 0},
+    "steps": {"above": 0},
+    "samples": {"above": 0},
+    "demo_epochs": {"above": 0},
+    "frame_epochs": {"above": 0},
+    "task_budgets": {"above": 0},
+    "batch_size": {"whole": True, "minimum": 1},
+    "checkpoints": {"whole": True, "minimum": 1},
+    "validation_episodes": {"whole": True, "minimum": 0},
+    "image_size": {"whole": True, "minimum": MIN_IMAGE_SIZE},
+    "eval_episodes": {"whole": True, "minimum": 1},
+    "eval_batch_size": {"whole": True, "minimum": 1},
+    "episode_length": {"whole": True, "minimum": 1},
+    "held_out_demos": {"whole": True, "minimum": 0},
+    "eval_checkpoints": {"whole": True, "minimum": 1},
+}
+TEXT_LIST_FIELDS = ("cameras", "perturbations")
+
+
+def _checked_number(value, label: str, bounds: dict):
+    """`value` of a numeric grid field (a number, a list or a per-policy or per-task mapping of them) as
+    check_number gives it back: a whole number written 2.0 is 2, so it names the same runs as 2."""
+    if isinstance(value, dict):
+        return {key: check_number(f"{label} of {key}", v, error=GridError, **bounds) for key, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return list(check_numbers(label, value, error=GridError, **bounds))
+    return check_number(label, value, error=GridError, **bounds)
+
+
+def check_values(values: dict, name: str) -> None:
+    """Type and range of every numeric and text field, before anything is built or run; each number in `values` is
+    replaced by its checked value."""
+    for key, bounds in NUMERIC_FIELDS.items():
+        if values.get(key) is not None:
+            values[key] = _checked_number(values[key], f"{name}: {key}", bounds)
+    for key in TEXT_LIST_FIELDS:
+        value = values.get(key, [])
+        if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
+            raise GridError(f"{name}: {key} is a list of names, e.g. [base_camera]; got {value!r}")
+    for key in ("name", "description", "preset", "control_mode", "checkpoints_from", "rlbench_data", "clip_weights"):
+        if key in values and values[key] is not None and not isinstance(values[key], str):
+            raise GridError(f"{name}: {key} is text; got {values[key]!r}")
+    for key in ("tasks", "obs_spaces", "policies", *NUMERIC_FIELDS, *TEXT_LIST_FIELDS):
+        if isinstance(values.get(key), list):
+            check_listed_once(values[key], key, name)
+    if not isinstance(values.get("policy_overrides", {}), dict):
+        raise GridError(f"{name}: policy_overrides is a mapping of --policy.* fields to values")
+    per_space = values.get("space_overrides", {})
+    if not isinstance(per_space, dict) or not all(isinstance(v, dict) for v in per_space.values()):
+        raise GridError(
+            f"{name}: space_overrides maps spaces to --policy.* fields, e.g. {{rgb: {{encoder_norm: batch}}}}"
+        )
+    _check_spaces_listed(per_space, values.get("obs_spaces", []), "space_overrides", name)
+
+
+def check_tasks(values: dict, tasks: list, name: str) -> list[str]:
+    """The grid's tasks: all RLBench tasks (returned) or all ManiSkill tasks (then no RLBench-only field)."""
+    rlbench = [t for t in tasks if isinstance(t, str) and grid_task_name(t) is not None]
+    if rlbench:
+        _check_rlbench(values, tasks, rlbench, name)
+        return rlbench
+    choose(tasks, list(TASKS), "tasks")
+    for task in tasks:
+        task_spec(task)
+    given = [k for k in ("rlbench_data", "clip_weights") if values.get(k) is not None]
+    if given:
+        raise GridError(f"{name}: {', '.join(given)} only apply to RLBench tasks (rlbench/<task>); the grid has none")
+    return rlbench
+
+
+def _check_rlbench(values: dict, tasks: list, rlbench: list[str], name: str) -> None:
+    """An RLBench grid: every task an RLBench task the importer knows, its data folder named, its cameras
+    RLBench's, and no ManiSkill-only setting given (each would otherwise be ignored)."""
+    others = [t for t in tasks if t not in rlbench]
+    if others:
+        raise GridError(
+            f"{name}: RLBench and ManiSkill tasks in one grid ({rlbench[0]} and {others[0]}); they differ in cameras, "
+            "image size and episode budget: put each simulator's tasks in a grid of its own"
+        )
+    for task in rlbench:
+        try:
+            rlbench_task(grid_task_name(task))
+        except RLBenchTaskError as err:
+            raise GridError(f"{name}: {err}") from None
+    if not values.get("rlbench_data"):
+        raise GridError(
+            f"{name}: RLBench tasks need `rlbench_data: DIR`, PerAct's pre-generated data (DIR/train/<task> and "
+            "DIR/test/<task>, plus DIR/val/<task> for validation_episodes)"
+        )
+    values.setdefault("cameras", ["front"])  # the paper's RLBench camera
+    bad = [c for c in values["cameras"] if c not in RLBENCH_CAMERAS] if isinstance(values["cameras"], list) else []
+    if bad:
+        raise GridError(f"{name}: cameras {bad} are not RLBench's; choose from {', '.join(RLBENCH_CAMERAS)}")
+    if values.get("image_size", RLBENCH_IMAGE_SIZE) != RLBENCH_IMAGE_SIZE:
+        raise GridError(
+            f"{name}: image_size {values['image_size']!r}: RLBench grids train on PerAct's data as rendered, "
+            f"{RLBENCH_IMAGE_SIZE} x {RLBENCH_IMAGE_SIZE}; leave image_size out"
+        )
+    for key in ("control_mode", "held_out_demos", "eval_batch_size"):
+        if values.get(key):
+            raise GridError(
+                f"{name}: {key} does not apply to RLBench tasks (they act by end-effector pose planning, are "
+                "evaluated one episode at a time in CoppeliaSim, and the held-out diagnostics replay ManiSkill "
+                "demonstrations); leave it out"
+            )
