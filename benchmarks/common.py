@@ -44,6 +44,7 @@ def machine() -> dict:
         "torch_threads": torch.get_num_threads(),
         "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
         "platform": platform.platform(),
+        "date": time.strftime("%Y-%m-%d"),
     }
 
 

@@ -18,8 +18,10 @@ come from benchmark results under `benchmarks/results/`; this tool derives them 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import sys
+import time
 from pathlib import Path
 from statistics import mean
 
@@ -80,11 +82,41 @@ def cuda_train_rates(results: Path = RESULTS) -> dict[str, dict[str, float]]:
     return {"tiny": small, "cpu": small, "paper": {"image": image, "point": round(mean(points), -1), "none": image}}
 
 
-def measured_rates(results: Path = RESULTS) -> dict:
-    """The rates file's measured entries, as the benchmarks' results under `results` give them."""
+# benchmark result -> the rates derived from it
+SOURCES = {
+    "eval_cpu.json": ["eval_steps_per_second.cpu", "eval_rate_image_size"],
+    "grid_cost_cpu-suite.json": ["eval_task_factor.cpu"],
+    "device_check_cuda_rerun.json": ["eval_steps_per_second.cuda"],
+    "device_check_cuda.json": ["train_samples_per_second.cuda"],
+    "train_step_cuda_paper.json": ["train_samples_per_second.cuda.paper.point"],
+}
+
+
+def provenance(results: Path, name: str, known: dict) -> dict:
+    """Where a rate came from: the result file (its content's hash), the machine it names, the date it was
+    measured (the result's own, else the day this file first took that content: `known` is the rates file's
+    earlier record)."""
+    data = _load(results, name)
+    machine = data.get("machine") or data["stages"]["machine"]
+    digest = hashlib.sha256((results / name).read_bytes()).hexdigest()[:16]
+    earlier = known.get(name, {})
+    date = machine.get("date") or (earlier["date"] if earlier.get("sha256") == digest else time.strftime("%Y-%m-%d"))
+    return {
+        "gives": SOURCES[name],
+        "sha256": digest,
+        "machine": f"{machine['cpu_count']}-core CPU" + (f", {machine['cuda']}" if machine.get("cuda") else ""),
+        "date": date,
+    }
+
+
+def measured_rates(results: Path = RESULTS, known: dict | None = None) -> dict:
+    """The rates file's measured entries, as the benchmarks' results under `results` give them, with each result's
+    provenance (`known`: the rates file's `sources`, whose dates carry over while a result is unchanged)."""
     totals = cpu_eval_totals(results)
     factors = _load(results, "grid_cost_cpu-suite.json")["evaluation"]
+    known = RATES.get("sources", {}) if known is None else known
     return {
+        "sources": {name: provenance(results, name, known) for name in SOURCES},
         "eval_steps_per_second": {
             "cpu": {str(n): round(steps / seconds, 1) for n, (steps, seconds) in sorted(totals.items())},
             "cuda": {str(r["batch_size"]): r["env_steps_per_s"] for r in cuda_evaluations(results)},

@@ -593,11 +593,13 @@ def test_refreshing_the_rates_follows_a_new_measurement_and_refuses_a_result_it_
         for row in rows:
             row["seconds"] *= 2 if row["batch_size"] == 1 else 1
     (results / "eval_cpu.json").write_text(json.dumps(measured))
-    changed = differences(RATES, merged(RATES, measured_rates(results)))
-    halved = round(RATES["eval_steps_per_second"]["cpu"]["1"] / 2, 1)
+    refreshed = merged(RATES, measured_rates(results))
+    changed = [line for line in differences(RATES, refreshed) if not line.startswith("sources.")]
     before = RATES["eval_steps_per_second"]["cpu"]["1"]
     assert len(changed) == 1 and changed[0].startswith(f"eval_steps_per_second.cpu.1: {before} -> ")
-    assert float(changed[0].split("-> ")[1]) == pytest.approx(halved, abs=0.1)
+    assert float(changed[0].split("-> ")[1]) == pytest.approx(round(before / 2, 1), abs=0.1)
+    source = refreshed["sources"]["eval_cpu.json"]  # the new content is named, on the machine it names
+    assert source["sha256"] != RATES["sources"]["eval_cpu.json"]["sha256"] and source["machine"] == "2-core CPU"
     next(iter(measured["with_policy"].values()))[0]["same_results_as_first"] = False
     (results / "eval_cpu.json").write_text(json.dumps(measured))
     with pytest.raises(RatesError, match="changed the episodes' outcomes"):
