@@ -21,7 +21,7 @@ import torch
 from benchmarks.bench_train_step import grid_run_policy, prepare, release, train_step
 from benchmarks.common import load_synthetic, write
 from lerobot_obsbench.numeric import number_argument
-from lerobot_obsbench.schema import CONTROL_SPACES
+from lerobot_obsbench.schema import is_control
 
 
 def milliseconds(step) -> float:
@@ -97,7 +97,7 @@ def main() -> None:
     device = torch.device(args.device)
     prepare(device)
     torch.set_num_threads(args.threads)
-    runs = {run.method: run for run in reversed(load_grid(args.grid).expand()) if run.obs_space not in CONTROL_SPACES}
+    runs = {run.method: run for run in reversed(load_grid(args.grid).expand()) if not is_control(run.obs_space)}
     synthetic = load_synthetic()
     rows = [compare(run, device, synthetic, args.repeats, args.warmup) for run in runs.values()]
     grid = Path(args.grid).name.removesuffix(".yaml")

@@ -30,12 +30,15 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from lerobot_obsbench.errors import ObsBenchError
-from lerobot_obsbench.schema import FUSED_SPACES, IMAGE_SPACES, POINT_SPACES
+from lerobot_obsbench.schema import Space, available_spaces, space_info
 
-KINDS = ("colour", "image", "points")
-# A fused space takes both: image transforms act on its images, point transforms on its cloud.
-IMAGE_AUGMENTED = (*IMAGE_SPACES, *FUSED_SPACES)
-POINT_AUGMENTED = (*POINT_SPACES, *FUSED_SPACES)
+# What each kind of transform acts on, asked of a space's record: the colour of its images, its images, its cloud
+# (a fused space's parts give it theirs: rgb+pointcloud takes image and point transforms).
+KINDS: dict[str, Callable[[Space], bool]] = {
+    "colour": lambda space: space.colour,
+    "image": lambda space: space.image,
+    "points": lambda space: space.points,
+}
 # DrQ pads 84-pixel frames by 4; other sizes are padded in proportion (3 pixels at 64²).
 SHIFT_FRACTION = 4 / 84
 # Diffusion Policy crops 84-pixel frames to 76 (90%) and takes the centre crop at test.
@@ -57,30 +60,37 @@ class AugmentationError(ObsBenchError, ValueError):
 @dataclass(frozen=True)
 class AugmentationInfo:
     name: str
-    kind: str  # one of KINDS
-    spaces: tuple[str, ...]
+    kind: str  # one of KINDS: what of a space it acts on, and so which spaces it applies to
     summary: str
     apply: Callable
     # points only: (half extents of the box (3,)) -> the farthest, in metres, the transform can move a point of it
     reach: Callable[[Tensor], float] | None = None
 
+    def applies_to(self, obs_space: str) -> bool:
+        return KINDS[self.kind](space_info(obs_space))
+
+    @property
+    def spaces(self) -> tuple[str, ...]:
+        """The registered spaces it applies to."""
+        return available_spaces(KINDS[self.kind])
+
 
 _REGISTRY: dict[str, AugmentationInfo] = {}
 
 
-def register_augmentation(name: str, kind: str, spaces: tuple[str, ...], summary: str, reach=None):
+def register_augmentation(name: str, kind: str, summary: str, reach=None):
     """Decorator registering a transform under `name`: `colour` and `image` transforms take and return one
     tensor; `points` transforms take (xyz (B, N, 3), valid (B, N), centre (3,) or (B, 3)) and return (xyz, valid)
     and must declare their `reach`."""
     if kind not in KINDS:
-        raise AugmentationError(f"augmentation {name!r}: kind must be one of {KINDS}; got {kind!r}")
+        raise AugmentationError(f"augmentation {name!r}: kind must be one of {tuple(KINDS)}; got {kind!r}")
     if (kind == "points") != (reach is not None):
         raise AugmentationError(f"augmentation {name!r}: point transforms, and only they, declare a reach")
 
     def decorator(apply: Callable) -> Callable:
         if name in _REGISTRY:
             raise AugmentationError(f"an augmentation named {name!r} is already registered")
-        _REGISTRY[name] = AugmentationInfo(name, kind, tuple(spaces), summary, apply, reach)
+        _REGISTRY[name] = AugmentationInfo(name, kind, summary, apply, reach)
         return apply
 
     return decorator
@@ -88,7 +98,7 @@ def register_augmentation(name: str, kind: str, spaces: tuple[str, ...], summary
 
 def available_augmentations(obs_space: str | None = None) -> list[str]:
     """Registered names, optionally only those applying to `obs_space`."""
-    return sorted(n for n, info in _REGISTRY.items() if obs_space is None or obs_space in info.spaces)
+    return sorted(n for n, info in _REGISTRY.items() if obs_space is None or info.applies_to(obs_space))
 
 
 def augmentation_info(name: str) -> AugmentationInfo:
@@ -109,7 +119,7 @@ def parse_augment(recipe: str, obs_space: str) -> tuple[str, ...]:
         raise AugmentationError(f"augment={recipe!r}: names joined by '+', each once (e.g. random_shift+colour_jitter)")
     for name in names:
         info = augmentation_info(name)
-        if obs_space not in info.spaces:
+        if not info.applies_to(obs_space):
             raise AugmentationError(
                 f"augment: {name!r} does not apply to obs_space={obs_space!r} (it applies to "
                 f"{', '.join(info.spaces)}); augmentations for {obs_space!r}: "
@@ -197,7 +207,6 @@ def _window(images: Tensor, height: int, width: int, random: bool) -> Tensor:
 @register_augmentation(
     "random_shift",
     "image",
-    IMAGE_AUGMENTED,
     "pad by 4/84 of the frame (edge pixels) and crop back at a random offset (DrQ)",
 )
 def random_shift(images: Tensor, training: bool) -> Tensor:
@@ -209,7 +218,6 @@ def random_shift(images: Tensor, training: bool) -> Tensor:
 @register_augmentation(
     "random_crop",
     "image",
-    IMAGE_AUGMENTED,
     "a random 90% crop in training, the centre crop at test, resized back to the frame (Diffusion Policy)",
 )
 def random_crop(images: Tensor, training: bool) -> Tensor:
@@ -225,7 +233,6 @@ def _factor(n: int, like: Tensor) -> Tensor:
 @register_augmentation(
     "colour_jitter",
     "colour",
-    ("rgb", "rgbd", "pointmap", *FUSED_SPACES),
     "brightness, contrast and saturation each scaled by 1 ± 0.2, per image",
 )
 def colour_jitter(rgb: Tensor) -> Tensor:
@@ -252,7 +259,6 @@ def _radius_xy(half: Tensor) -> float:
 @register_augmentation(
     "point_rotate",
     "points",
-    POINT_AUGMENTED,
     "rotate the scene about the vertical axis through the crop box's centre, ±5°",
     reach=lambda half: 2 * math.sin(math.radians(POINT_ROTATION_DEG) / 2) * _radius_xy(half),
 )
@@ -269,7 +275,6 @@ def point_rotate(xyz: Tensor, valid: Tensor, centre: Tensor) -> tuple[Tensor, Te
 @register_augmentation(
     "point_scale",
     "points",
-    POINT_AUGMENTED,
     "scale the scene about the crop box's centre by 1 ± 0.05",
     reach=lambda half: POINT_SCALE / (1 - POINT_SCALE) * float(half.norm()),
 )
@@ -282,7 +287,6 @@ def point_scale(xyz: Tensor, valid: Tensor, centre: Tensor) -> tuple[Tensor, Ten
 @register_augmentation(
     "point_translate",
     "points",
-    POINT_AUGMENTED,
     "move the scene by up to ±2 cm per axis",
     reach=lambda half: POINT_TRANSLATION_M * math.sqrt(3),
 )
@@ -293,7 +297,6 @@ def point_translate(xyz: Tensor, valid: Tensor, centre: Tensor) -> tuple[Tensor,
 @register_augmentation(
     "point_jitter",
     "points",
-    POINT_AUGMENTED,
     "move each point by Gaussian noise (2 mm, clipped to 5 mm) per axis",
     reach=lambda half: JITTER_CLIP_M * math.sqrt(3),
 )
@@ -302,8 +305,6 @@ def point_jitter(xyz: Tensor, valid: Tensor, centre: Tensor) -> tuple[Tensor, Te
     return xyz + noise, valid
 
 
-@register_augmentation(
-    "point_dropout", "points", POINT_AUGMENTED, "drop 10% of the points at random", reach=lambda half: 0.0
-)
+@register_augmentation("point_dropout", "points", "drop 10% of the points at random", reach=lambda half: 0.0)
 def point_dropout(xyz: Tensor, valid: Tensor, centre: Tensor) -> tuple[Tensor, Tensor]:
     return xyz, valid & (torch.rand(valid.shape, device=valid.device) >= POINT_DROPOUT)

@@ -25,15 +25,7 @@ from __future__ import annotations
 from collections.abc import Collection, Mapping
 
 from lerobot_obsbench.encoders import default_encoder
-from lerobot_obsbench.schema import (
-    DEPTH_IMAGE_SPACES,
-    FUSED_SPACES,
-    IMAGE_SPACES,
-    POINT_SPACES,
-    POLICY_TYPES,
-    check_choice,
-    space_parts,
-)
+from lerobot_obsbench.schema import POLICY_TYPES, check_choice, space_info
 
 ACT, DP = POLICY_TYPES
 # The paper's point-cloud encoders: FPS + kNN tokenizer, its pipeline and heads.
@@ -112,12 +104,15 @@ PRESETS: dict[str, dict[tuple[str, str], dict[str, object]]] = {
 
 def space_kinds(obs_space: str) -> tuple[str, ...]:
     """The preset keys a space takes: `all`, and `image`, `depth`, `point` where it (or a part of it) is one."""
-    parts = space_parts(obs_space)
-    kinds = ["all"]
-    for kind, spaces in (("image", IMAGE_SPACES), ("depth", DEPTH_IMAGE_SPACES), ("point", POINT_SPACES)):
-        if any(part in spaces for part in parts):
-            kinds.append(kind)
-    return tuple(kinds)
+    space = space_info(obs_space)
+    return (
+        "all",
+        *(
+            kind
+            for kind, applies in (("image", space.image), ("depth", space.depth), ("point", space.points))
+            if applies
+        ),
+    )
 
 
 def _merged(preset: str, policy_type: str, kinds) -> dict[str, object]:
@@ -130,8 +125,8 @@ def _merged(preset: str, policy_type: str, kinds) -> dict[str, object]:
 
 def preset_encoder(preset: str, obs_space: str) -> str:
     """The encoder a preset uses for `obs_space` when none is named (for a fused space, its parts' joined)."""
-    if obs_space in FUSED_SPACES:
-        return "+".join(preset_encoder(preset, part) for part in FUSED_SPACES[obs_space])
+    if space_info(obs_space).fused:
+        return "+".join(preset_encoder(preset, part) for part in space_info(obs_space).parts)
     return str(_merged(preset, ACT, space_kinds(obs_space)).get("encoder") or default_encoder(obs_space))
 
 
@@ -141,7 +136,7 @@ def preset_overrides(preset: str, policy_type: str, obs_space: str, encoder: str
     check_choice("policy type", policy_type, POLICY_TYPES)
     encoders = (encoder or preset_encoder(preset, obs_space)).split("+")  # a fused space's: each part's fields
     fields = _merged(preset, policy_type, (*space_kinds(obs_space), *encoders))
-    if obs_space in FUSED_SPACES:
+    if space_info(obs_space).fused:
         fields.pop("encoder", None)  # a part's encoder choice; the fused space's is the pair
     return fields
 

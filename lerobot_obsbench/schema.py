@@ -33,24 +33,6 @@ POLICY_TYPES = ("obs_act", "obs_diffusion")
 
 # ---- observation spaces and their design choices ---------------------------------------------------------
 
-# Spaces fed to image encoders, with their channel counts (rgb 3, metric depth 1, rgb ‖ depth, rgb ‖ xyz).
-IMAGE_CHANNELS = {"rgb": 3, "depth": 1, "rgbd": 4, "pointmap": 6}
-IMAGE_SPACES = tuple(IMAGE_CHANNELS)
-DEPTH_IMAGE_SPACES = ("depth", "rgbd", "pointmap")  # image spaces with a depth or xyz channel
-POINT_SPACES = ("pointcloud",)
-# Spaces whose input holds 3-D positions unprojected from depth (point clouds, pointmaps): `frame` expresses them.
-POSITION_SPACES = (*POINT_SPACES, "pointmap")
-# Fused spaces (beyond the paper): each part's input through its own encoder, their tokens (ACT) or features
-# (Diffusion Policy) side by side in one condition. The name is the parts joined by "+".
-FUSED_SPACES = {"rgb+pointcloud": ("rgb", "pointcloud")}
-# The blind control (beyond the paper): the same proprioception and goal, no visual observation at all.
-BLIND_SPACES = ("none",)
-# The oracle control (beyond the paper): the same policy given the simulator's object poses instead of a sensor,
-# an upper bound on what any observation can give. Only simulated demos record it.
-ORACLE_SPACES = ("state",)
-# Encoder-free controls that read no camera.
-CONTROL_SPACES = (*BLIND_SPACES, *ORACLE_SPACES)
-OBS_SPACES = (*IMAGE_SPACES, *POINT_SPACES, *FUSED_SPACES, *CONTROL_SPACES)
 # Per-point features of a point cloud, with their channel counts.
 POINT_FEATURES = {"rgb+xyz": 6, "xyz": 3, "rgb": 3}
 # Frames point coordinates can be expressed in: world (robot base), the first camera, the end effector.
@@ -95,22 +77,94 @@ POSE_COMPONENTS = ("x", "y", "z", "qw", "qx", "qy", "qz")
 # smaller frames, after the simulation has run; so demos, grids and envs refuse it up front.
 MIN_IMAGE_SIZE = 32
 
-# Which per-camera sensors each observation space reads.
-SPACE_SENSORS: dict[str, tuple[str, ...]] = {
-    "rgb": (IMAGE_PREFIX,),
-    "depth": (DEPTH_PREFIX,),
-    "rgbd": (IMAGE_PREFIX, DEPTH_PREFIX),
-    **dict.fromkeys(POSITION_SPACES, (IMAGE_PREFIX, DEPTH_PREFIX, INTRINSICS_PREFIX, CAM2WORLD_PREFIX)),
-    "none": (),
-    "state": (),
-}
-# a fused space reads what its parts read
-SPACE_SENSORS.update(
-    {
-        fused: tuple(dict.fromkeys(p for part in parts for p in SPACE_SENSORS[part]))
-        for fused, parts in FUSED_SPACES.items()
-    }
-)
+
+@dataclass(frozen=True)
+class Space:
+    """An observation space: what a policy sees, read per camera, and what applies to it. Registered once
+    (`register_space`); every consumer asks the record (`space_info(name)`), never a list of names. A fused space
+    is its parts (`fused_space`), its properties theirs."""
+
+    name: str
+    # per-camera sensors it reads (dataset key prefixes); the controls read none
+    sensors: tuple[str, ...] = ()
+    # channels of the image an image encoder gets (0: no image of its own)
+    image_channels: int = 0
+    # whether its input includes an image (so it has a frame size and image augmentations apply)
+    image: bool = False
+    # whether that image carries colour (colour augmentations apply)
+    colour: bool = False
+    # whether that image carries a depth or xyz channel (`depth_normalization` applies)
+    depth: bool = False
+    # whether its input holds 3-D positions unprojected from depth (`frame` expresses them)
+    positions: bool = False
+    # whether its input is a point cloud (a crop box, the point-cloud choices, point augmentations)
+    points: bool = False
+    # "blind" or "oracle" for the encoder-free controls (beyond the paper); "" for a sensor space
+    control: str = ""
+    # a fused space's parts, in the order their encoders are named ("a+b"); () for a single space
+    parts: tuple[str, ...] = ()
+
+    @property
+    def fused(self) -> bool:
+        return bool(self.parts)
+
+
+_SPACES: dict[str, Space] = {}
+
+
+def register_space(space: Space) -> Space:
+    """Add `space` to the vocabulary (a name registered twice is refused)."""
+    if space.name in _SPACES:
+        raise ConfigError(f"an observation space named {space.name!r} is already registered")
+    if space.control and (space.sensors or space.image or space.points):
+        raise ConfigError(f"obs_space {space.name!r}: a control reads no sensor")
+    _SPACES[space.name] = space
+    return space
+
+
+def fused_space(*parts: str) -> Space:
+    """The fused space of registered single sensor spaces (beyond the paper): each part's input through its own
+    encoder, their tokens (ACT) or features (Diffusion Policy) side by side in one condition; named "a+b"."""
+    records = [space_info(p) for p in parts]
+    if len(records) < 2 or any(r.fused or r.control for r in records):
+        raise ConfigError(f"a fused space joins two or more single sensor spaces; got {'+'.join(parts)!r}")
+    return Space(
+        name="+".join(parts),
+        sensors=tuple(dict.fromkeys(prefix for r in records for prefix in r.sensors)),
+        image=any(r.image for r in records),
+        colour=any(r.colour for r in records),
+        depth=any(r.depth for r in records),
+        positions=any(r.positions for r in records),
+        points=any(r.points for r in records),
+        parts=tuple(parts),
+    )
+
+
+def space_info(name: str) -> Space:
+    """The registered space named `name`; a SchemaError naming the choices otherwise."""
+    if name not in _SPACES:
+        raise SchemaError(f"Unknown obs_space {name!r}; choose one of {', '.join(_SPACES)}.")
+    return _SPACES[name]
+
+
+def available_spaces(where=None) -> tuple[str, ...]:
+    """Names of the registered spaces, in registration order; `where(space)`: only those it accepts."""
+    return tuple(name for name, space in _SPACES.items() if where is None or where(space))
+
+
+_POSITIONS = (IMAGE_PREFIX, DEPTH_PREFIX, INTRINSICS_PREFIX, CAM2WORLD_PREFIX)
+# The paper's spaces: rgb, metric depth, rgb ‖ depth, rgb ‖ xyz (a pointmap), a point cloud.
+register_space(Space("rgb", (IMAGE_PREFIX,), image_channels=3, image=True, colour=True))
+register_space(Space("depth", (DEPTH_PREFIX,), image_channels=1, image=True, depth=True))
+register_space(Space("rgbd", (IMAGE_PREFIX, DEPTH_PREFIX), image_channels=4, image=True, colour=True, depth=True))
+register_space(Space("pointmap", _POSITIONS, image_channels=6, image=True, colour=True, depth=True, positions=True))
+register_space(Space("pointcloud", _POSITIONS, positions=True, points=True))
+register_space(fused_space("rgb", "pointcloud"))
+# The blind control: the same proprioception and goal, no visual observation at all.
+register_space(Space("none", control="blind"))
+# The oracle control: the same policy given the simulator's object poses instead of a sensor, an upper bound on
+# what any observation can give. Only simulated demos record it.
+register_space(Space("state", control="oracle"))
 
 
 class SchemaError(ObsBenchError, ValueError):
@@ -124,37 +178,47 @@ def check_choice(name: str, value: str, choices) -> str:
     return value
 
 
-def check_obs_space(obs_space: str) -> str:
-    if obs_space not in OBS_SPACES:
-        raise SchemaError(f"Unknown obs_space {obs_space!r}; choose one of {', '.join(OBS_SPACES)}.")
-    return obs_space
+def single_spaces(where) -> tuple[str, ...]:
+    """Names of the registered single (unfused) spaces `where(space)` accepts: what an encoder of one input
+    declares it encodes (a fused space pairs encoders of its parts)."""
+    return available_spaces(lambda space: not space.fused and where(space))
 
 
-def space_parts(obs_space: str) -> tuple[str, ...]:
-    """The spaces whose inputs `obs_space` gives: its parts for a fused space, itself otherwise."""
-    return FUSED_SPACES.get(check_obs_space(obs_space), (obs_space,))
+def check_obs_space(name: str) -> str:
+    return space_info(name).name
 
 
-def reads_points(obs_space: str) -> bool:
+def space_parts(name: str) -> tuple[str, ...]:
+    """The spaces whose inputs `name` gives: its parts for a fused space, itself otherwise."""
+    return space_info(name).parts or (name,)
+
+
+def is_control(name: str) -> bool:
+    """Whether `name` is an encoder-free control (blind or oracle), which reads no camera."""
+    return bool(space_info(name).control)
+
+
+def reads_points(name: str) -> bool:
     """Whether the space's input includes a point cloud (so it has a crop box and the point-cloud choices)."""
-    return any(part in POINT_SPACES for part in space_parts(obs_space))
+    return space_info(name).points
 
 
-def reads_images(obs_space: str) -> bool:
+def reads_images(name: str) -> bool:
     """Whether the space's input includes images (so it has a frame size)."""
-    return any(part in IMAGE_SPACES for part in space_parts(obs_space))
+    return space_info(name).image
 
 
-def has_positions(obs_space: str) -> bool:
+def has_positions(name: str) -> bool:
     """Whether the space's input holds 3-D positions, which `frame` expresses (point clouds, pointmaps)."""
-    return any(part in POSITION_SPACES for part in space_parts(obs_space))
+    return space_info(name).positions
 
 
-def input_channels(obs_space: str, point_features: str = "rgb+xyz") -> int:
+def input_channels(name: str, point_features: str = "rgb+xyz") -> int:
     """Channels the encoder receives: image channels, per-point feature size for point clouds, 0 when blind."""
-    if check_obs_space(obs_space) in POINT_SPACES:
+    space = space_info(name)
+    if space.points and not space.fused:
         return POINT_FEATURES[check_choice("point_features", point_features, POINT_FEATURES)]
-    return IMAGE_CHANNELS.get(obs_space, 0)
+    return space.image_channels
 
 
 @dataclass
@@ -187,7 +251,7 @@ def cam2world_key(cam: str) -> str:
 
 def sensor_keys(obs_space: str, cameras: list[str] | tuple[str, ...]) -> list[str]:
     """Dataset keys an observation space reads, camera by camera."""
-    return [prefix + cam for cam in cameras for prefix in SPACE_SENSORS[check_obs_space(obs_space)]]
+    return [prefix + cam for cam in cameras for prefix in space_info(obs_space).sensors]
 
 
 def is_sensor_key(key: str) -> bool:
@@ -303,9 +367,9 @@ def validate_features(
     space). Raises `SchemaError` naming every missing or mis-shaped key and how to fix it.
     """
     check_obs_space(obs_space)
-    if obs_space in ORACLE_SPACES and PRIVILEGED_STATE_KEY not in features:
+    if space_info(obs_space).control == "oracle" and PRIVILEGED_STATE_KEY not in features:
         raise SchemaError(ORACLE_HINT.format(obs_space=obs_space))
-    needed = SPACE_SENSORS[obs_space]
+    needed = space_info(obs_space).sensors
     if not needed:
         return []
     recorded = sorted(k for k in features if k.startswith(OBS_PREFIX))  # LeRobot's depth maps included
@@ -381,7 +445,7 @@ def camera_resolution(
     features = with_calibrated_depth(features, calibration or {})
     cam = cameras[0]
     for key in (image_key(cam), depth_key(cam)):
-        if key in features and prefix_of(key) in SPACE_SENSORS[obs_space]:
+        if key in features and prefix_of(key) in space_info(obs_space).sensors:
             return list(frame_size(key, features[key]))
     return []
 
@@ -446,7 +510,7 @@ def privileged_state_objects(names: list[str]) -> list[str]:
 def oracle_problems(config, objects: list[str] | tuple[str, ...] | None) -> list[str]:
     """Whether an oracle policy's object poses are the task's `objects` (None: not checked): the objects it was
     trained on where the checkpoint names them, else the number of values."""
-    if objects is None or getattr(config, "obs_space", None) not in ORACLE_SPACES:
+    if objects is None or getattr(config, "obs_space", None) not in available_spaces(lambda s: s.control == "oracle"):
         return []
     trained = privileged_state_objects(list(getattr(config, "privileged_state_names", None) or []))
     if trained and trained != list(objects):

@@ -42,22 +42,17 @@ from lerobot_obsbench.augmentations import Augmenter, parse_augment
 from lerobot_obsbench.errors import ConfigError
 from lerobot_obsbench.numeric import check_number, check_numbers
 from lerobot_obsbench.schema import (
-    BLIND_SPACES,
-    CONTROL_SPACES,
-    DEPTH_IMAGE_SPACES,
     DEPTH_NORMALIZATIONS,
     FRAMES,
-    FUSED_SPACES,
-    ORACLE_SPACES,
     POINT_FEATURES,
     POINT_NORMALIZATIONS,
     POINT_PIPELINES,
-    POINT_SPACES,
-    POSITION_SPACES,
     PRIVILEGED_STATE_KEY,
     STATE_KEY,
     PointCloud,
     SchemaError,
+    Space,
+    available_spaces,
     cam2world_key,
     check_choice,
     check_obs_space,
@@ -65,7 +60,9 @@ from lerobot_obsbench.schema import (
     has_positions,
     image_key,
     intrinsics_key,
+    is_control,
     reads_points,
+    space_info,
     stock_depth_key,
 )
 
@@ -134,10 +131,10 @@ class AdapterConfig:
 
     def _check_space(self) -> None:
         """Settings only some spaces have: refuse them elsewhere instead of ignoring them."""
-        if self.depth_normalization == "official" and self.obs_space not in DEPTH_IMAGE_SPACES:
+        if self.depth_normalization == "official" and not space_info(self.obs_space).depth:
             raise ConfigError(
                 f"depth_normalization={self.depth_normalization!r} scales depth / xyz images; obs_space="
-                f"{self.obs_space!r} has none (spaces that do: {', '.join(DEPTH_IMAGE_SPACES)})"
+                f"{self.obs_space!r} has none (spaces that do: {', '.join(available_spaces(lambda s: s.depth))})"
             )
         if self.workspace_jitter and not reads_points(self.obs_space):
             raise ConfigError(
@@ -167,7 +164,7 @@ class ObservationAdapter(nn.Module):
 
     def __init__(self, config: AdapterConfig):
         super().__init__()
-        if not config.cameras and config.obs_space not in CONTROL_SPACES:
+        if not config.cameras and not is_control(config.obs_space):
             raise SchemaError(f"ObservationAdapter for obs_space={config.obs_space!r} needs at least one camera name.")
         self.config = config
         self.augment = Augmenter(config.augmentations())
@@ -250,33 +247,33 @@ class ObservationAdapter(nn.Module):
     # ---- spaces ------------------------------------------------------------------------------------------
 
     def forward(self, batch: dict, ee_pose: Tensor | None = None) -> Tensor | PointCloud | tuple:
-        space = self.config.obs_space
-        if space in BLIND_SPACES:
+        space = space_info(self.config.obs_space)
+        if space.control == "blind":
             state = _require(batch, STATE_KEY)
             return state.new_zeros(state.shape[0], 0)
-        if space in ORACLE_SPACES:
+        if space.control == "oracle":
             return _require(batch, PRIVILEGED_STATE_KEY).float()
-        if space in FUSED_SPACES:
-            return tuple(self._space_input(part, batch, ee_pose) for part in FUSED_SPACES[space])
+        if space.fused:
+            return tuple(self._space_input(space_info(part), batch, ee_pose) for part in space.parts)
         return self._space_input(space, batch, ee_pose)
 
-    def _space_input(self, space: str, batch: dict, ee_pose: Tensor | None) -> Tensor | PointCloud:
-        if space in POINT_SPACES:
+    def _space_input(self, space: Space, batch: dict, ee_pose: Tensor | None) -> Tensor | PointCloud:
+        if space.points:
             return self._pointcloud(batch, ee_pose)
-        to_frame = self._frame_transform(batch, ee_pose) if space in POSITION_SPACES else None
+        to_frame = self._frame_transform(batch, ee_pose) if space.positions else None
         per_camera = [
             torch.cat(self._image_channels(space, batch, cam, to_frame), dim=1) for cam in self.config.cameras
         ]
         return self.augment.image(torch.stack(per_camera, dim=1))
 
-    def _image_channels(self, space: str, batch: dict, cam: str, to_frame: Tensor | None) -> list[Tensor]:
-        """One camera's channels of an image space (B, C, H, W) each: colour, scaled depth, xyz."""
+    def _image_channels(self, space: Space, batch: dict, cam: str, to_frame: Tensor | None) -> list[Tensor]:
+        """One camera's channels of an image space's record (B, C, H, W) each: colour, scaled depth, xyz."""
         channels = []
-        if space in ("rgb", "rgbd", "pointmap"):
+        if space.colour:
             channels.append((self.augment.colour(self._rgb(batch, cam)) - self.rgb_mean) / self.rgb_std)
-        if space in ("depth", "rgbd"):
+        if space.depth and not space.positions:  # a pointmap's depth is its xyz
             channels.append(self._scaled_depth(self._depth_m(batch, cam))[:, None])
-        if space in POSITION_SPACES:
+        if space.positions:
             points, valid, _ = self._world_points(batch, cam)
             points = _in_frame(points, to_frame) * valid[..., None]
             if self.config.depth_normalization == "official":

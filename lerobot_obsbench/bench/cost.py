@@ -12,7 +12,7 @@ from lerobot_obsbench.bench.grid import Grid
 from lerobot_obsbench.bench.specs import EvalSpec, RunSpec
 from lerobot_obsbench.bench.units import demo_dir, demo_frames, demos_recorded
 from lerobot_obsbench.envs.base_task import task_spec
-from lerobot_obsbench.schema import CONTROL_SPACES, reads_points
+from lerobot_obsbench.schema import is_control, reads_points
 
 DEMO_FRAMES_PER_EPISODE = 30  # for estimates before the demonstrations exist
 
@@ -55,7 +55,7 @@ def device_kind(device: str) -> str:
 
 
 def space_kind(obs_space: str) -> str:
-    return "point" if reads_points(obs_space) else "none" if obs_space in CONTROL_SPACES else "image"
+    return "point" if reads_points(obs_space) else "none" if is_control(obs_space) else "image"
 
 
 def train_seconds(run: RunSpec, steps: int, device: str) -> float:

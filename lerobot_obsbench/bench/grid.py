@@ -46,7 +46,7 @@ from lerobot_obsbench.rlbench.evaluate import MAX_STEPS as RLBENCH_MAX_STEPS
 from lerobot_obsbench.rlbench.evaluate import camera_view_for
 from lerobot_obsbench.rlbench.paper_tasks import WORKSPACE as RLBENCH_WORKSPACE
 from lerobot_obsbench.rlbench.paper_tasks import grid_task_name
-from lerobot_obsbench.schema import CONTROL_SPACES, OBS_SPACES, POLICY_TYPES, reads_points
+from lerobot_obsbench.schema import POLICY_TYPES, available_spaces, is_control, reads_points
 
 
 @dataclass
@@ -188,7 +188,7 @@ class Grid:
     def perturbations_for(self, run: RunSpec) -> list[str]:
         """The perturbations a run is evaluated under: none for the controls, which read no pixels (every
         perturbation changes only what the cameras see: their episodes would replay the nominal ones)."""
-        return [] if run.obs_space in CONTROL_SPACES else list(self.perturbations)
+        return [] if is_control(run.obs_space) else list(self.perturbations)
 
     def validations(self, run: RunSpec, checkpoint_steps: list[int]) -> list[EvalSpec]:
         """The validation evaluations that select the run's best checkpoint."""
@@ -222,7 +222,7 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
     values.setdefault("name", name)
     tasks = as_list(values.get("tasks"), "tasks")
     rlbench = check_tasks(values, tasks, name)
-    spaces = choose(as_list(values.get("obs_spaces"), "obs_spaces"), list(OBS_SPACES), "obs_spaces")
+    spaces = choose(as_list(values.get("obs_spaces"), "obs_spaces"), list(available_spaces()), "obs_spaces")
     policies = as_list(values.get("policies", ["obs_act"]), "policies")
     refuse_named_policies(policies, name)
     choose(policies, list(POLICY_TYPES), "policies")

@@ -14,7 +14,7 @@ from lerobot_obsbench.presets import preset_encoder
 from lerobot_obsbench.rlbench.paper_tasks import CAMERAS as RLBENCH_CAMERAS
 from lerobot_obsbench.rlbench.paper_tasks import IMAGE_SIZE as RLBENCH_IMAGE_SIZE
 from lerobot_obsbench.rlbench.paper_tasks import RLBenchTaskError, grid_task_name, rlbench_task
-from lerobot_obsbench.schema import CONTROL_SPACES, MIN_IMAGE_SIZE
+from lerobot_obsbench.schema import MIN_IMAGE_SIZE, is_control
 
 
 def as_list(value, name: str) -> list:
@@ -71,7 +71,7 @@ def resolve_encoders(spec, spaces: list[str], preset: str, name: str) -> dict[st
     choose(names, available_encoders(), "encoders")
     resolved = {s: [n for n in names if s in encoder_info(n).spaces] for s in spaces}
     for space, chosen in resolved.items():
-        if not chosen and space in CONTROL_SPACES:
+        if not chosen and is_control(space):
             resolved[space] = [preset_encoder(preset, space)]  # the controls need no encoder listed
         elif not chosen:
             raise GridError(

@@ -7,7 +7,7 @@ import argparse
 import sys
 
 from lerobot_obsbench.commands import common
-from lerobot_obsbench.schema import OBS_SPACES
+from lerobot_obsbench.schema import available_spaces, space_info
 
 NAME = "encoders"
 HELP = "list registered encoders and augmentations, and the observation spaces they accept"
@@ -15,22 +15,23 @@ EXAMPLE = """obsbench encoders --obs-space pointcloud"""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--obs-space", choices=OBS_SPACES, help="only encoders and augmentations accepting this space")
+    p.add_argument(
+        "--obs-space", choices=available_spaces(), help="only encoders and augmentations accepting this space"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     from lerobot_obsbench.augmentations import augmentation_info, available_augmentations
     from lerobot_obsbench.encoders import available_encoders, default_encoder, encoder_info
-    from lerobot_obsbench.schema import FUSED_SPACES
 
     for name in available_encoders(args.obs_space):
         info = encoder_info(name)
         weights = f"; pretrained: {info.pretrained}" if info.pretrained else ""
         print(f"{name:10s} spaces: {', '.join(info.spaces):32s} {info.summary}{weights}")
-    for space, parts in FUSED_SPACES.items():
+    for space in available_spaces(lambda s: s.fused):
         if args.obs_space in (None, space):
             print(
-                f"\n{space}: one encoder per part ({', '.join(parts)}) joined by '+', e.g. "
+                f"\n{space}: one encoder per part ({', '.join(space_info(space).parts)}) joined by '+', e.g. "
                 f"--policy.encoder={default_encoder(space)} (the default)"
             )
     print("\naugmentations (--policy.augment=NAME[+NAME...], in training only):")

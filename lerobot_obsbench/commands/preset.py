@@ -7,7 +7,7 @@ import sys
 
 from lerobot_obsbench.commands import common
 from lerobot_obsbench.errors import UsageError
-from lerobot_obsbench.schema import OBS_SPACES, POLICY_TYPES
+from lerobot_obsbench.schema import POLICY_TYPES, available_spaces
 
 NAME = "preset"
 HELP = "print the --policy.* overrides of a named preset, to paste into lerobot-train"
@@ -22,7 +22,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--policy", default=POLICY_TYPES[0], choices=(*POLICY_TYPES, *NAMED_POLICIES), help="policy type or named type"
     )
-    p.add_argument("--obs-space", default=None, choices=OBS_SPACES, help="default: pointcloud, or the named type's")
+    p.add_argument(
+        "--obs-space", default=None, choices=available_spaces(), help="default: pointcloud, or the named type's"
+    )
     p.add_argument("--encoder", default=None, help="the encoder you train with (default: the preset's for the space)")
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from lerobot_obsbench.commands import common
 from lerobot_obsbench.errors import MissingFileError
-from lerobot_obsbench.schema import OBS_SPACES
+from lerobot_obsbench.schema import available_spaces
 
 NAME = "validate"
 HELP = (
@@ -24,7 +24,7 @@ EXAMPLE = """obsbench validate --root data/pickcube --obs-space pointcloud"""
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--root", required=True, help="dataset directory")
     p.add_argument("--repo-id", default="local/dataset")
-    p.add_argument("--obs-space", default="all", choices=("all", *OBS_SPACES))
+    p.add_argument("--obs-space", default="all", choices=("all", *available_spaces()))
     p.add_argument("--cameras", nargs="*", default=[], help="camera names (default: every camera found)")
     p.add_argument(
         "--quick",

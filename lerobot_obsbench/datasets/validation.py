@@ -38,16 +38,15 @@ from lerobot_obsbench.schema import (
     DEPTH_PREFIX,
     IMAGE_PREFIX,
     INTRINSICS_PREFIX,
-    OBS_SPACES,
-    ORACLE_SPACES,
     PRIVILEGED_STATE_KEY,
-    SPACE_SENSORS,
     SchemaError,
+    available_spaces,
     cam2world_key,
     depth_key,
     frame_size,
     image_key,
     intrinsics_key,
+    space_info,
     stock_depth_cameras,
     stock_depth_key,
     validate_features,
@@ -477,7 +476,7 @@ def space_verdicts(
             verdicts[space] = ([], [str(err)])
             continue
         problems = []
-        needed = SPACE_SENSORS[space]
+        needed = space_info(space).sensors
         for cam in used:
             scan = (scans or {}).get(cam)
             if scan is None:
@@ -507,11 +506,13 @@ def validate_dataset(
     features = meta.features
     calibration = {cam: c.to_dict() for cam, c in read_calibration(root).items()}
     stock = [cam for cam in stock_depth_cameras(features) if cam in calibration]
-    spaces = OBS_SPACES if obs_space == "all" else (obs_space,)
+    spaces = available_spaces() if obs_space == "all" else (obs_space,)
     if obs_space == "all" and PRIVILEGED_STATE_KEY not in features:
         # the oracle control exists only in simulation: not a defect of a real recording
-        spaces = tuple(s for s in spaces if s not in ORACLE_SPACES)
-        echo(f"n/a     {ORACLE_SPACES[0]:10s} the oracle control needs simulated object poses ({PRIVILEGED_STATE_KEY})")
+        oracles = available_spaces(lambda s: s.control == "oracle")
+        spaces = tuple(s for s in spaces if s not in oracles)
+        for oracle in oracles:
+            echo(f"n/a     {oracle:10s} the oracle control needs simulated object poses ({PRIVILEGED_STATE_KEY})")
     scan = None
     if not quick:
         scan = FrameScan(meta.total_frames)
@@ -535,7 +536,7 @@ def validate_dataset(
             failures += 1
             echo(f"FAILED  {space:10s} " + "\n                   ".join(problems))
         else:
-            control = "oracle control: object poses" if space in ORACLE_SPACES else "blind control"
+            control = "oracle control: object poses" if space_info(space).control == "oracle" else "blind control"
             echo(f"ok      {space:10s} cameras: {', '.join(used) or f'(none: {control})'}")
     for camera_scan in (scans or {}).values():
         for note in camera_scan.notes:
@@ -558,7 +559,7 @@ def _decoded_sources(
     """(colour keys, cameras with LeRobot depth) that the asked spaces train from: decoded frame by frame."""
     colour_keys, depth_cameras = set(), set()
     for space in spaces:
-        sensors = SPACE_SENSORS[space]
+        sensors = space_info(space).sensors
         for cam in _used(features, space, cameras, calibration):
             if IMAGE_PREFIX in sensors:
                 colour_keys.add(image_key(cam))

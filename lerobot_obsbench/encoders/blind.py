@@ -10,7 +10,7 @@ from __future__ import annotations
 from torch import Tensor, nn
 
 from lerobot_obsbench.encoders.registry import EncoderContext, EncoderOutput, register_encoder
-from lerobot_obsbench.schema import BLIND_SPACES
+from lerobot_obsbench.schema import available_spaces
 
 
 class BlindEncoder(nn.Module):
@@ -32,10 +32,10 @@ def describe_blind(obs_space: str, output: str, dim: int, context: EncoderContex
 
 @register_encoder(
     "blind",
-    BLIND_SPACES,
+    available_spaces(lambda s: s.control == "blind"),
     "no visual input: the blind control of the `none` space",
     describe_blind,
-    default_for=BLIND_SPACES,
+    default_for=available_spaces(lambda s: s.control == "blind"),
 )
 def build_blind(obs_space: str, output: str, dim: int) -> BlindEncoder:
     return BlindEncoder(output, dim)

@@ -28,7 +28,7 @@ from torch import Tensor, nn
 from lerobot_obsbench import geometry
 from lerobot_obsbench.encoders.point_tokenizer import POINT_NORMS, masked_apply
 from lerobot_obsbench.encoders.registry import EncoderContext, EncoderError, EncoderOutput, register_encoder
-from lerobot_obsbench.schema import POINT_SPACES, PointCloud, input_channels
+from lerobot_obsbench.schema import PointCloud, input_channels, single_spaces
 
 # DP3's per-point widths (`block_channel`) per point-feature choice, and whether the last layer is a bare Linear.
 DP3_WIDTHS = {"xyz": (64, 128, 256), "rgb+xyz": (64, 128, 256, 512)}
@@ -101,7 +101,7 @@ def describe_dp3(obs_space: str, output: str, dim: int, context: EncoderContext,
 
 @register_encoder(
     "dp3",
-    POINT_SPACES,
+    single_spaces(lambda s: s.points),
     "DP3's compact PointNet (3D Diffusion Policy): per-point MLP + LayerNorm, max-pool, 64-d (59.1k on xyz)",
     describe_dp3,
     choices={"norm": POINT_NORMS},

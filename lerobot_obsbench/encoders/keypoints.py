@@ -30,7 +30,7 @@ from torch import Tensor, nn
 
 from lerobot_obsbench.encoders.image_input import as_frame_size, resize
 from lerobot_obsbench.encoders.registry import EncoderContext, EncoderError, EncoderOutput, register_encoder
-from lerobot_obsbench.schema import IMAGE_SPACES, input_channels
+from lerobot_obsbench.schema import input_channels, single_spaces
 
 # (out channels, kernel, stride) of each conv layer; padding kernel // 2 ("same" at stride 1).
 CONV_LAYERS = ((32, 5, 2), (64, 3, 2), (64, 3, 1), (128, 3, 1))
@@ -120,7 +120,7 @@ def describe_spatial_softmax(
 
 @register_encoder(
     "spatial_softmax",
-    IMAGE_SPACES,
+    single_spaces(lambda s: s.image),
     "4-layer GroupNorm conv stack + spatial soft-argmax, 32 keypoints per camera (0.14M, from scratch)",
     describe_spatial_softmax,
     choices={"norm": IMAGE_NORMS},

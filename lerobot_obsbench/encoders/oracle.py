@@ -12,7 +12,7 @@ import torch
 from torch import Tensor, nn
 
 from lerobot_obsbench.encoders.registry import EncoderContext, EncoderError, EncoderOutput, register_encoder
-from lerobot_obsbench.schema import ORACLE_SPACES, POSE_SIZE
+from lerobot_obsbench.schema import POSE_SIZE, available_spaces
 
 
 def _objects(state_dim: int) -> int:
@@ -46,10 +46,10 @@ def describe_oracle(obs_space: str, output: str, dim: int, context: EncoderConte
 
 @register_encoder(
     "oracle",
-    ORACLE_SPACES,
+    available_spaces(lambda s: s.control == "oracle"),
     "the simulator's object poses, one token per object: the oracle control of the `state` space",
     describe_oracle,
-    default_for=ORACLE_SPACES,
+    default_for=available_spaces(lambda s: s.control == "oracle"),
 )
 def build_oracle(obs_space: str, output: str, dim: int, state_dim: int = POSE_SIZE) -> OracleEncoder:
     return OracleEncoder(output, dim, state_dim)

@@ -15,10 +15,10 @@ Each registered encoder states its contract:
 
 Names are unique: registering a name twice is an error.
 
-A fused space (`schema.FUSED_SPACES`, e.g. rgb+pointcloud) is encoded by one registered encoder per part, named
-by their names joined the same way (`spatial_softmax+dp3`): `FusedEncoder` runs each on its part's input and puts
-their tokens side by side (ACT) or concatenates their features (Diffusion Policy). Its options are its parts'
-options, each passed to the part that takes it; an option two parts take (`norm`) is not an option of the pair.
+A fused space (a `schema.Space` with parts, e.g. rgb+pointcloud) is encoded by one registered encoder per part,
+named by their names joined the same way (`spatial_softmax+dp3`): `FusedEncoder` runs each on its part's input and
+puts their tokens side by side (ACT) or concatenates their features (Diffusion Policy). Its options are its parts'
+options, each passed to every part that takes it (one `norm` value sets both parts' normalisation).
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ import torch
 from torch import nn
 
 from lerobot_obsbench.errors import ObsBenchError
-from lerobot_obsbench.schema import FUSED_SPACES, OBS_SPACES, check_obs_space
+from lerobot_obsbench.schema import available_spaces, check_obs_space, space_info
 
 OUTPUTS = ("tokens", "global")
 # Builder parameters every encoder has; the rest of a builder's signature are its options.
@@ -102,7 +102,7 @@ def register_encoder(
     `pretrained=` option loads (empty: none); `default_for` lists the spaces this encoder is the default of;
     `choices` the values of options that take one of a fixed set.
     """
-    unknown = set(spaces) - set(OBS_SPACES)
+    unknown = set(spaces) - set(available_spaces())
     if unknown:
         raise EncoderError(f"encoder {name!r} declares unknown spaces {sorted(unknown)}")
     if not set(default_for) <= set(spaces):
@@ -158,8 +158,9 @@ def available_encoders(obs_space: str | None = None) -> list[str]:
     encoders of its parts)."""
     if obs_space is None:
         return sorted(_REGISTRY)
-    if check_obs_space(obs_space) in FUSED_SPACES:
-        return ["+".join(names) for names in itertools.product(*map(available_encoders, FUSED_SPACES[obs_space]))]
+    parts = space_info(obs_space).parts
+    if parts:
+        return ["+".join(names) for names in itertools.product(*map(available_encoders, parts))]
     return sorted(name for name, info in _REGISTRY.items() if obs_space in info.spaces)
 
 
@@ -171,7 +172,7 @@ def encoder_info(name: str) -> EncoderInfo:
         return _fused_info(tuple(parts))
     raise EncoderError(
         f"Unknown encoder {name!r}; registered encoders: {', '.join(sorted(_REGISTRY))} (a fused space takes one "
-        f"per part joined by '+', e.g. {'+'.join(default_encoder(p) for p in next(iter(FUSED_SPACES.values())))})."
+        f"per part joined by '+', e.g. {default_encoder(available_spaces(lambda s: s.fused)[0])})."
     )
 
 
@@ -194,30 +195,35 @@ class FusedEncoder(nn.Module):
 
 def _fused_info(parts: tuple[str, ...]) -> EncoderInfo:
     infos = [_REGISTRY[p] for p in parts]
-    spaces = tuple(
-        space
-        for space, space_parts in FUSED_SPACES.items()
-        if len(space_parts) == len(infos) and all(sp in i.spaces for sp, i in zip(space_parts, infos, strict=True))
-    )
+
+    def accepted(space) -> bool:
+        pairs = zip(space.parts, infos, strict=False)
+        return len(space.parts) == len(infos) and all(part in info.spaces for part, info in pairs)
+
+    spaces = available_spaces(accepted)
     if not spaces:
+        fused = [space_info(name) for name in available_spaces(lambda s: s.fused)]
         raise EncoderError(
             f"encoder {'+'.join(parts)!r}: no fused space has parts these encoders accept in this order "
-            f"(fused spaces: {', '.join(f'{k} = {" + ".join(v)}' for k, v in FUSED_SPACES.items())})"
+            f"(fused spaces: {', '.join(f'{s.name} = {" + ".join(s.parts)}' for s in fused)})"
         )
-    counts = [o for i in infos for o in i.options]
-    options = tuple(dict.fromkeys(o for o in counts if counts.count(o) == 1))
+    options = tuple(dict.fromkeys(o for i in infos for o in i.options))
+    choices: dict[str, tuple] = {}  # a shared option takes the values every part that offers a set allows
+    for info in infos:
+        for option, allowed in info.choices.items():
+            choices[option] = tuple(v for v in choices.get(option, allowed) if v in allowed)
 
     def split(options_given: dict) -> list[dict]:
         return [{k: v for k, v in options_given.items() if k in i.options} for i in infos]
 
     def build(obs_space: str, output: str, dim: int, **given) -> FusedEncoder:
-        pieces = zip(parts, FUSED_SPACES[obs_space], split(given), strict=True)
+        pieces = zip(parts, space_info(obs_space).parts, split(given), strict=True)
         return FusedEncoder([make_encoder(n, sp, output, dim, **o) for n, sp, o in pieces], output)
 
     def describe(obs_space: str, output: str, dim: int, context: EncoderContext, given: dict) -> EncoderOutput:
         outs = [
             i.describe(sp, output, dim, context, {**i.defaults, **o})
-            for i, sp, o in zip(infos, FUSED_SPACES[obs_space], split(given), strict=True)
+            for i, sp, o in zip(infos, space_info(obs_space).parts, split(given), strict=True)
         ]
         if output == "tokens":
             return EncoderOutput(sum(o.tokens for o in outs), dim)
@@ -230,15 +236,16 @@ def _fused_info(parts: tuple[str, ...]) -> EncoderInfo:
         build,
         describe,
         options,
-        {k: v for i in infos for k, v in i.defaults.items() if k in options},
-        choices={k: v for i in infos for k, v in i.choices.items() if k in options},
+        {k: v for i in reversed(infos) for k, v in i.defaults.items()},  # a shared option's default: the first part's
+        choices=choices,
     )
 
 
 def default_encoder(obs_space: str) -> str:
     """The registry's default encoder for `obs_space` (the paper's choice; for a fused space, its parts')."""
-    if check_obs_space(obs_space) in FUSED_SPACES:
-        return "+".join(default_encoder(part) for part in FUSED_SPACES[obs_space])
+    parts = space_info(obs_space).parts
+    if parts:
+        return "+".join(default_encoder(part) for part in parts)
     for info in _REGISTRY.values():
         if obs_space in info.default_for:
             return info.name
@@ -280,7 +287,7 @@ def _checked(name: str, obs_space: str, output: str, options: dict) -> EncoderIn
 def make_encoder(name: str, obs_space: str, output: str = "tokens", dim: int = 512, **options) -> nn.Module:
     """Build encoder `name` for `obs_space`; `options` are the encoder's own (`encoder_info(name).options`)."""
     info = _checked(name, obs_space, output, options)
-    if obs_space in FUSED_SPACES:
+    if space_info(obs_space).fused:
         return info.build(obs_space, output, dim, **options)
     for key, option_set in info.option_sets.items():  # gather a shared option set's fields into one instance
         names = {f.name for f in dataclasses.fields(option_set)}

@@ -17,7 +17,7 @@ from lerobot_obsbench.encoders.pretrained import (
     strip_prefix,
 )
 from lerobot_obsbench.encoders.registry import EncoderContext, EncoderOutput, register_encoder
-from lerobot_obsbench.schema import IMAGE_SPACES, input_channels
+from lerobot_obsbench.schema import input_channels, single_spaces
 
 R3M_PREFIX = "module.convnet."
 FEATURE_CHANNELS = {"resnet18": 512, "resnet50": 2048}  # layer4's channels
@@ -122,16 +122,16 @@ def _builder(arch: str):
 
 register_encoder(
     "resnet18",
-    IMAGE_SPACES,
+    single_spaces(lambda s: s.image),
     "torchvision ResNet-18 (CPU presets); layer4 map -> tokens / pooled",
     _describer("resnet18"),
     pretrained="imagenet, or a torchvision-layout file",
 )(_builder("resnet18"))
 register_encoder(
     "resnet50",
-    IMAGE_SPACES,
+    single_spaces(lambda s: s.image),
     "torchvision ResNet-50 (paper, 23.5M); layer4 map -> tokens / pooled",
     _describer("resnet50"),
     pretrained="imagenet, a torchvision-layout file, or R3M (module.convnet.*)",
-    default_for=IMAGE_SPACES,
+    default_for=single_spaces(lambda s: s.image),
 )(_builder("resnet50"))

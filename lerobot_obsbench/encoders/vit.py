@@ -28,7 +28,7 @@ from torch import Tensor, nn
 from lerobot_obsbench.encoders.image_input import as_frame_size, resize_center_crop, zero_extra_channels
 from lerobot_obsbench.encoders.pretrained import expand_input_channels, load_matching, read_state_dict
 from lerobot_obsbench.encoders.registry import EncoderContext, EncoderOutput, register_encoder
-from lerobot_obsbench.schema import IMAGE_SPACES, input_channels
+from lerobot_obsbench.schema import input_channels, single_spaces
 
 WIDTH, DEPTH, HEADS, PATCH = 768, 12, 12, 16
 
@@ -200,7 +200,7 @@ def describe_camera_tokens(
 
 @register_encoder(
     "vit_b",
-    IMAGE_SPACES,
+    single_spaces(lambda s: s.image),
     "ViT-B/16 (paper, 85.8M); [CLS] token",
     describe_camera_tokens,
     pretrained="VC-1 / MAE layout",

@@ -25,7 +25,6 @@ from lerobot_obsbench.policies.onecycle import OneCycleSchedulerConfig
 from lerobot_obsbench.schema import (
     DEPTH_PREFIX,
     EE_POSE_SIZE,
-    ORACLE_SPACES,
     PRIVILEGED_STATE_KEY,
     SAMPLING,
     STATE_KEY,
@@ -37,6 +36,7 @@ from lerobot_obsbench.schema import (
     reads_images,
     reads_points,
     sensor_keys,
+    space_info,
     stock_depth_key,
     validate_features,
 )
@@ -319,7 +319,7 @@ class ObservationConfig:
         `input_features`: LeRobot's normaliser must not touch depth (mm), K or cam2world, and RGB is
         normalised by the adapter so that training and evaluation see identical inputs."""
         sensors = {k: ft for k, ft in self.input_features.items() if is_sensor_key(k)}
-        if self.obs_space in ORACLE_SPACES:
+        if space_info(self.obs_space).control == "oracle":
             if sensors or not self.privileged_state_dim:  # a dataset's features; a loaded checkpoint has the size
                 validate_features(self.input_features, self.obs_space)
                 self.privileged_state_dim = int(self.input_features[PRIVILEGED_STATE_KEY].shape[0])
@@ -347,7 +347,11 @@ class ObservationConfig:
         if not self.depth_calibration:
             self.depth_calibration = dataset_calibration(dataset_meta)
         names = dataset_meta.features.get(PRIVILEGED_STATE_KEY, {}).get("names")
-        if self.obs_space in ORACLE_SPACES and not self.privileged_state_names and isinstance(names, list):
+        if (
+            space_info(self.obs_space).control == "oracle"
+            and not self.privileged_state_names
+            and isinstance(names, list)
+        ):
             self.privileged_state_names = [str(name) for name in names]
 
     def dataset_reads(self, dataset_meta) -> set[str]:
@@ -356,7 +360,7 @@ class ObservationConfig:
         the schema's depth). lerobot-train then loads nothing else (`lerobot_obsbench.dataset_reads`)."""
         features = dataset_meta.features
         reads = {key for key in features if not is_sensor_key(key)}
-        if self.obs_space in ORACLE_SPACES:
+        if space_info(self.obs_space).control == "oracle":
             return reads | {PRIVILEGED_STATE_KEY}
         calibration = self.depth_calibration or dataset_calibration(dataset_meta)
         # the dataset's own features: validate_features registers calibrated depth itself, and names a LeRobot
@@ -370,7 +374,7 @@ class ObservationConfig:
         return reads
 
     def observation_keys(self) -> list[str]:
-        oracle = [PRIVILEGED_STATE_KEY] if self.obs_space in ORACLE_SPACES else []
+        oracle = [PRIVILEGED_STATE_KEY] if space_info(self.obs_space).control == "oracle" else []
         return sensor_keys(self.obs_space, self.cameras) + oracle
 
     def encoder_options(self) -> dict:

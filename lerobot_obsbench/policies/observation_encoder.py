@@ -10,7 +10,7 @@ from torch import Tensor, nn
 from lerobot_obsbench import geometry
 from lerobot_obsbench.encoders import encoder_output, make_encoder
 from lerobot_obsbench.errors import UnsupportedError
-from lerobot_obsbench.schema import BLIND_SPACES, EE_POSE_SIZE, ORACLE_SPACES, PRIVILEGED_STATE_KEY, STATE_KEY
+from lerobot_obsbench.schema import EE_POSE_SIZE, PRIVILEGED_STATE_KEY, STATE_KEY, space_info
 from lerobot_obsbench.spaces import ObservationAdapter
 
 
@@ -73,11 +73,11 @@ class ObservationEncoder(nn.Module):
         stats = (dataset_stats or {}).get(STATE_KEY)
         self.state = StateDenormalizer(config.input_features.get(STATE_KEY), mode, stats)
         self.privileged = None
-        if config.obs_space in ORACLE_SPACES:
+        if space_info(config.obs_space).control == "oracle":
             stats = (dataset_stats or {}).get(PRIVILEGED_STATE_KEY)
             self.privileged = Standardizer(config.privileged_state_dim, stats)
         # the keys the adapter reads (the blind space reads the state, for the batch size only)
-        reads_state = self.adapter.needs_ee_pose or config.obs_space in BLIND_SPACES
+        reads_state = self.adapter.needs_ee_pose or space_info(config.obs_space).control == "blind"
         self.input_keys = config.observation_keys() + ([STATE_KEY] if reads_state else [])
         # the encoder compiled for training (`compile_encoder`): the same parameters, held outside the module tree
         # so that the state dict and checkpoints stay those of the eager encoder

@@ -14,7 +14,7 @@ import pytest
 from lerobot_obsbench.cli import main
 from lerobot_obsbench.commands.train import lerobot_train_args
 from lerobot_obsbench.presets import PRESETS, preset_args, preset_encoder, preset_overrides
-from lerobot_obsbench.schema import FUSED_SPACES, OBS_SPACES, POLICY_TYPES
+from lerobot_obsbench.schema import POLICY_TYPES, available_spaces, space_info
 
 BIN = Path(sys.executable).parent
 SPACES = ["rgb", "depth", "rgbd", "pointmap", "pointcloud"]
@@ -39,8 +39,8 @@ def preset_cases() -> list[tuple[str, str, str, str]]:
         (preset, policy, space, encoder)
         for preset in PRESETS
         for policy in POLICY_TYPES
-        for space in OBS_SPACES
-        for encoder in ([preset_encoder(preset, space)] if space in FUSED_SPACES else available_encoders(space))
+        for space in available_spaces()
+        for encoder in ([preset_encoder(preset, space)] if space_info(space).fused else available_encoders(space))
     ]
 
 

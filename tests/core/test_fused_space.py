@@ -1,13 +1,15 @@
 """The fused space rgb+pointcloud (beyond the paper): it reads what its parts read, the adapter gives each part's
 input exactly as the part's own space does, the encoder pair puts each part encoder's tokens side by side (ACT) or
 concatenates their features (Diffusion Policy), both policies train and act on it, and grids, presets and configs
-treat it as a point-cloud space with images."""
+treat it as a point-cloud space with images. And a fused space the package does not ship (rgb+depth), registered
+in a test alone, is taken by every consumer."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
+from lerobot_obsbench import schema
 from lerobot_obsbench.encoders import (
     EncoderContext,
     available_encoders,
@@ -17,7 +19,16 @@ from lerobot_obsbench.encoders import (
     encoder_output,
     make_encoder,
 )
-from lerobot_obsbench.schema import FUSED_SPACES, OBS_SPACES, PointCloud, reads_images, reads_points, sensor_keys
+from lerobot_obsbench.schema import (
+    PointCloud,
+    available_spaces,
+    fused_space,
+    reads_images,
+    reads_points,
+    register_space,
+    sensor_keys,
+    space_info,
+)
 from lerobot_obsbench.spaces import AdapterConfig, ObservationAdapter
 from tests.support.helpers import CAM, frame_batch
 
@@ -27,7 +38,7 @@ PAIR_OPTIONS = {"image_size": (32, 32), "point_features": "xyz", "num_tokens": 8
 
 
 def test_a_fused_space_reads_what_its_parts_read():
-    assert FUSED in OBS_SPACES and FUSED_SPACES[FUSED] == ("rgb", "pointcloud")
+    assert FUSED in available_spaces() and space_info(FUSED).parts == ("rgb", "pointcloud")
     assert set(sensor_keys(FUSED, [CAM])) == set(sensor_keys("rgb", [CAM])) | set(sensor_keys("pointcloud", [CAM]))
     assert reads_points(FUSED) and reads_images(FUSED) and not reads_points("rgb") and not reads_images("pointcloud")
 
@@ -54,7 +65,7 @@ def test_encoder_pairs_are_named_by_their_parts_and_checked_in_order():
     with pytest.raises(ValueError, match="does not accept obs_space='pointcloud'"):
         check_encoder("spatial_softmax+dp3", "pointcloud")
     info = encoder_info("spatial_softmax+dp3")
-    assert "norm" not in info.options  # both parts take one: ambiguous for the pair
+    assert "norm" in info.options  # both parts take it: one value sets both
     assert {"num_keypoints", "point_features", "num_tokens"} <= set(info.options)
 
 
@@ -118,8 +129,14 @@ def test_configs_presets_and_grids_treat_the_fused_space_as_points_with_images()
 
     config = ObsACTConfig(device="cpu", obs_space=FUSED, workspace_jitter=0.01, frame="ee")
     assert config.encoder == "resnet50+pointnet"
-    with pytest.raises(ValueError, match="encoder_norm='batch' is not an option of encoder 'spatial_softmax\\+dp3'"):
-        ObsACTConfig(device="cpu", obs_space=FUSED, encoder="spatial_softmax+dp3", encoder_norm="batch")
+    # an option both parts take sets both, to a value each allows (dp3 offers batch and layer, spatial softmax
+    # group and batch)
+    ObsACTConfig(device="cpu", obs_space=FUSED, encoder="spatial_softmax+dp3", encoder_norm="batch")
+    with pytest.raises(ValueError, match="encoder_norm='group': encoder 'spatial_softmax\\+dp3' takes batch"):
+        ObsACTConfig(device="cpu", obs_space=FUSED, encoder="spatial_softmax+dp3", encoder_norm="group")
+    pair = make_encoder("spatial_softmax+dp3", FUSED, "tokens", dim=16, norm="batch", **PAIR_OPTIONS)
+    batch_norms = (torch.nn.BatchNorm1d, torch.nn.BatchNorm2d)
+    assert all(any(isinstance(m, batch_norms) for m in part.modules()) for part in pair.parts)
     assert preset_encoder("cpu", FUSED) == "resnet18+pointnet"
     fields = preset_overrides("cpu", "obs_act", FUSED, "spatial_softmax+dp3")
     assert fields["point_features"] == "xyz" and fields["num_tokens"] == 128 and "encoder" not in fields
@@ -138,3 +155,49 @@ def test_configs_presets_and_grids_treat_the_fused_space_as_points_with_images()
     workspace = dict(fused[0].policy_overrides)["workspace"]
     assert workspace == dict(grid.expand()[0].policy_overrides)["workspace"]  # the task's crop box, as pointcloud's
     assert fused[1].method == "obs_act/rgb+pointcloud/spatial_softmax+dp3/random_shift+point_jitter"
+
+
+@pytest.fixture
+def rgb_depth(monkeypatch):
+    """A fused space the package does not ship, registered for one test (the vocabulary is restored after)."""
+    monkeypatch.setattr(schema, "_SPACES", dict(schema._SPACES))
+    return register_space(fused_space("rgb", "depth")).name
+
+
+def test_a_fused_space_registered_in_one_place_is_taken_by_every_consumer(rgb_depth, synthetic_module):
+    """rgb+depth, one line in this test: its record comes from its parts, and presets (the paper's depth
+    normalisation included), augmentation checks, the encoder pairs and their options, configs, grids and the
+    adapter all follow it with no other edit."""
+    from lerobot_obsbench.augmentations import AugmentationError, available_augmentations, parse_augment
+    from lerobot_obsbench.bench.grid import parse_grid
+    from lerobot_obsbench.policies import ObsACTConfig
+    from lerobot_obsbench.presets import preset_encoder, preset_overrides, space_kinds
+
+    space = space_info(rgb_depth)
+    assert space.parts == ("rgb", "depth") and space.image and space.colour and space.depth
+    assert not (space.points or space.positions or space.control)
+    assert set(sensor_keys(rgb_depth, [CAM])) == set(sensor_keys("rgbd", [CAM]))
+    assert space_kinds(rgb_depth) == ("all", "image", "depth")
+    # augmentations: image and colour transforms apply, point transforms do not
+    assert set(available_augmentations(rgb_depth)) == {"random_shift", "random_crop", "colour_jitter"}
+    with pytest.raises(AugmentationError, match="'point_jitter' does not apply to obs_space='rgb\\+depth'"):
+        parse_augment("point_jitter", rgb_depth)
+    # the encoder pairs of its parts, with their options (each option the pair's parts share sets both)
+    assert preset_encoder("paper", rgb_depth) == "resnet50+resnet50" in available_encoders(rgb_depth)
+    assert {"pretrained", "input_size", "zero_extra_channels"} <= set(encoder_info("resnet50+resnet50").options)
+    # the paper preset (official depth normalisation, zero-initialised extra channels) makes a valid config
+    fields = preset_overrides("paper", "obs_act", rgb_depth)
+    assert fields["depth_normalization"] == "official" and fields["zero_init_extra_channels"] is True
+    config = ObsACTConfig(device="cpu", obs_space=rgb_depth, encoder="resnet50+resnet50", **fields)
+    assert config.encoder == "resnet50+resnet50"
+    grid = parse_grid(
+        {"tasks": ["PushCubeWide-v1"], "obs_spaces": [rgb_depth], "augmentations": {rgb_depth: ["random_shift"]}}
+        | {"steps": 10, "preset": "cpu"}
+    )
+    assert [(r.obs_space, r.augment) for r in grid.expand()] == [(rgb_depth, "random_shift")]
+    assert "workspace" not in dict(grid.expand()[0].policy_overrides)  # no cloud, no crop box
+    # the adapter gives each part's input as the part's own space does
+    batch = frame_batch(synthetic_module, batch_size=2, size=32)
+    images, depth = ObservationAdapter(AdapterConfig(rgb_depth, [CAM])).eval()(batch)
+    assert torch.equal(images, ObservationAdapter(AdapterConfig("rgb", [CAM])).eval()(batch))
+    assert torch.equal(depth, ObservationAdapter(AdapterConfig("depth", [CAM])).eval()(batch))

@@ -11,7 +11,10 @@ from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot_obsbench import geometry
 from lerobot_obsbench.encoders import EncoderContext, EncoderOutput, available_encoders, encoder_output, make_encoder
 from lerobot_obsbench.presets import model_sizes
-from lerobot_obsbench.schema import IMAGE_SPACES, OBS_SPACES, POINT_SPACES, PointCloud, input_channels
+from lerobot_obsbench.schema import PointCloud, available_spaces, input_channels, single_spaces
+
+IMAGE_SPACES = single_spaces(lambda s: s.image)
+POINT_SPACES = single_spaces(lambda s: s.points)
 from tests.support.helpers import CAM, frame_batch
 
 
@@ -131,7 +134,7 @@ def test_dp3_is_refused_where_it_does_not_fit():
     with pytest.raises(TypeError, match="'dp3' takes no option"):
         make_encoder("dp3", "pointcloud", knn=4)
     assert "dp3" in available_encoders("pointcloud")
-    assert [s for s in OBS_SPACES if "dp3" in available_encoders(s)] == list(POINT_SPACES)
+    assert [s for s in available_spaces() if "dp3" in available_encoders(s)] == list(POINT_SPACES)
 
 
 # ---- spatial_softmax -----------------------------------------------------------------------------------------
@@ -231,7 +234,7 @@ def test_spatial_softmax_trains_end_to_end():
 
 
 def test_spatial_softmax_is_refused_where_it_does_not_fit():
-    assert set(s for s in OBS_SPACES if "spatial_softmax" in available_encoders(s)) == set(IMAGE_SPACES)
+    assert set(s for s in available_spaces() if "spatial_softmax" in available_encoders(s)) == set(IMAGE_SPACES)
     for space in (*POINT_SPACES, "none"):
         with pytest.raises(ValueError, match=f"Encoder 'spatial_softmax' does not accept obs_space='{space}'"):
             make_encoder("spatial_softmax", space)
@@ -340,7 +343,7 @@ def test_every_preset_configures_every_registered_encoder(preset, policy_type):
 
     from lerobot_obsbench.presets import preset_overrides
 
-    for obs_space in OBS_SPACES:
+    for obs_space in available_spaces():
         for encoder in available_encoders(obs_space):
             fields = preset_overrides(preset, policy_type, obs_space, encoder)
             fields.pop("encoder", None)

@@ -12,21 +12,27 @@ from functools import cached_property
 from lerobot_obsbench.bench import aggregates
 from lerobot_obsbench.bench.report.runs import label_configs, method_labels, most_demos
 from lerobot_obsbench.bench.report.statistics import Cell, ReportError
-from lerobot_obsbench.schema import BLIND_SPACES, CONTROL_SPACES, ORACLE_SPACES
+from lerobot_obsbench.schema import available_spaces, space_info
 
 # Marks of a seeing method whose 95% interval lies above its blind control's.
 ABOVE_ACROSS_SEEDS = "▲"  # both rest on >= 2 training seeds: the intervals cover training variance
 ABOVE_ONE_SEED = "△"  # one side rests on one training seed: its interval covers evaluation episodes only
 
 
-def _control_labels(labels, configs: dict[str, dict], spaces: tuple[str, ...], policy: str) -> list[str]:
-    """The column labels among `labels` whose space is one of `spaces` (a control) and policy type `policy`."""
-    return [m for m in labels if configs[m]["obs_space"] in spaces and configs[m]["policy"] == policy]
+def control_kind(obs_space: str) -> str:
+    """ "blind" or "oracle" for a control space, "" for a seeing space or one this process has not registered (a
+    results file may hold spaces another installation registered)."""
+    return space_info(obs_space).control if obs_space in available_spaces() else ""
 
 
-def _controls(row: dict[str, Cell], configs: dict[str, dict], spaces: tuple[str, ...], policy: str) -> list[Cell]:
-    """The cells of one task's row whose space is one of `spaces` (a control) and whose policy type is `policy`."""
-    return [row[m] for m in _control_labels(row, configs, spaces, policy)]
+def _control_labels(labels, configs: dict[str, dict], kind: str, policy: str) -> list[str]:
+    """The column labels among `labels` of a `kind` control ("blind" / "oracle") and policy type `policy`."""
+    return [m for m in labels if control_kind(configs[m]["obs_space"]) == kind and configs[m]["policy"] == policy]
+
+
+def _controls(row: dict[str, Cell], configs: dict[str, dict], kind: str, policy: str) -> list[Cell]:
+    """The cells of one task's row of a `kind` control ("blind" / "oracle") and policy type `policy`."""
+    return [row[m] for m in _control_labels(row, configs, kind, policy)]
 
 
 def beats_blind(records: list[dict], cells: dict[str, dict[str, Cell]]) -> dict[str, dict[str, dict]]:
@@ -38,9 +44,9 @@ def beats_blind(records: list[dict], cells: dict[str, dict[str, Cell]]) -> dict[
     out: dict[str, dict[str, dict]] = {}
     for task, row in cells.items():
         for method, cell in row.items():
-            if configs[method]["obs_space"] in BLIND_SPACES:
+            if control_kind(configs[method]["obs_space"]) == "blind":
                 continue
-            controls = _controls(row, configs, BLIND_SPACES, configs[method]["policy"])
+            controls = _controls(row, configs, "blind", configs[method]["policy"])
             if not controls:
                 continue
             blind = max(controls, key=lambda c: c.ci95[1])
@@ -65,11 +71,11 @@ def control_brackets(records: list[dict], cells: dict[str, dict[str, Cell]]) -> 
     for task, row in cells.items():
         for method, cell in row.items():
             policy = configs[method]["policy"]
-            if configs[method]["obs_space"] in CONTROL_SPACES:
+            if control_kind(configs[method]["obs_space"]):
                 continue
             best = {}
-            for kind, spaces in (("blind", BLIND_SPACES), ("oracle", ORACLE_SPACES)):
-                controls = _controls(row, configs, spaces, policy)
+            for kind in ("blind", "oracle"):
+                controls = _controls(row, configs, kind, policy)
                 best[kind] = max(c.rate for c in controls) if controls else None
             if best["blind"] is None or best["oracle"] is None:
                 continue
@@ -155,8 +161,8 @@ def seed_aggregates(
     configs = label_configs(records)
     over_blind, over_reference = {}, {}
     for label in sorted(scores):
-        if configs[label]["obs_space"] not in BLIND_SPACES:
-            blinds = _control_labels(scores, configs, BLIND_SPACES, configs[label]["policy"])
+        if control_kind(configs[label]["obs_space"]) != "blind":
+            blinds = _control_labels(scores, configs, "blind", configs[label]["policy"])
             if blinds:
                 blind = max(blinds, key=lambda m: estimates[m]["mean_sr"][0])
                 over_blind[label] = (blind, aggregates.improvement_estimate(scores[label], scores[blind]))
