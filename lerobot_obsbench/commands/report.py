@@ -53,6 +53,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="replace --out's report files and the --json file even when another report or no report wrote them",
     )
+    p.add_argument(
+        "--grid",
+        default=None,
+        help="a grid file or preset name: report only the runs it names, and their evaluations (a results file "
+        "shared by several grids, or holding runs of a budget the grid no longer gives)",
+    )
     p.add_argument("--title", default="OBSBench report")
     p.add_argument(
         "--reference",
@@ -88,6 +94,7 @@ def run(args: argparse.Namespace) -> int:
         "writer": "obsbench report",
         "results": str(args.results.resolve()) if args.results else None,
         "table": str(Path(table).resolve()) if table else None,
+        **({"grid": str(args.grid)} if args.grid else {}),
     }
     check_output_folder(out, "--out", inputs, files=REPORT_FILES, made_by=made_by, overwrite=args.overwrite)
     if args.json:  # never over the results it summarises
@@ -95,6 +102,8 @@ def run(args: argparse.Namespace) -> int:
     records = read_results(args.results) if args.results else []
     if args.results and not records:
         print(f"warning: no readable records in {args.results}", file=sys.stderr)
+    if args.grid:
+        records = grid_records(records, args.grid)
     published = read_published(table) if table else None
     report = build_report(
         records,
@@ -119,6 +128,18 @@ def run(args: argparse.Namespace) -> int:
         record_outputs([args.json], made_by)
     print(f"report: {paths['markdown']}, {paths['html']}" + (f"; summary: {args.json}" if args.json else ""))
     return 0
+
+
+def grid_records(records: list[dict], grid_name: str) -> list[dict]:
+    """The records of the runs `grid_name` names; a ReportError when it names none of the file's runs."""
+    from lerobot_obsbench.bench.grid import load_grid
+    from lerobot_obsbench.bench.report import ReportError
+
+    run_ids = {run.run_id for run in load_grid(grid_name).expand()}
+    kept = [record for record in records if record.get("run_id") in run_ids]
+    if records and not kept:
+        raise ReportError(f"the results hold none of the {len(run_ids)} runs grid {grid_name!r} names")
+    return kept
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -499,3 +499,25 @@ def test_a_setting_that_differs_only_from_task_to_task_keeps_one_column():
     other["config"]["policy_overrides"] = {"workspace": [0, 3, 0, 3, 0, 3]}
     split = cells_by_task([*records, other])
     assert [cell.seeds for cell in split["T1"].values()] == [2, 1] and len(split["T2"]) == 1
+
+
+def test_a_report_of_one_grid_leaves_out_the_other_runs_of_its_folder(tmp_path, capsys):
+    """`--grid`: a results file holding a grid's runs beside others (an older budget of the same method, another
+    grid's pieces) reports the grid's runs only; a grid naming none of them is refused."""
+    from lerobot_obsbench.bench.grid import load_grid
+
+    grid = tmp_path / "g.yaml"
+    grid.write_text("tasks: [PushCube-v1]\nobs_spaces: [rgb]\nsteps: 5\npreset: tiny\n")
+    (run,) = load_grid(grid).expand()
+    ours = record(run.run_id, "PushCube-v1", "rgb", 9)
+    older = record("0123456789abcdef", "PushCube-v1", "rgb", 1)
+    older["config"]["budget"] = 3  # the same method at another budget: another column without --grid
+    results = tmp_path / "results.jsonl"
+    results.write_text("".join(json.dumps(r) + "\n" for r in stored(ours, older)))
+    assert main(["report", str(results), "--grid", str(grid), "--json", str(tmp_path / "s.json")]) == 0
+    summary = json.loads((tmp_path / "s.json").read_text())
+    assert list(summary["results"]) == ["obs_act/rgb/e"] and summary["results"]["obs_act/rgb/e"]["mean_sr"] == 0.9
+    other = tmp_path / "other.yaml"
+    other.write_text("tasks: [PickCube-v1]\nobs_spaces: [rgb]\nsteps: 5\npreset: tiny\n")
+    assert main(["report", str(results), "--grid", str(other), "--out", str(tmp_path / "r2")]) == 2
+    assert "the results hold none of the 1 runs grid" in capsys.readouterr().err
