@@ -12,10 +12,10 @@ from lerobot_obsbench import geometry
 from lerobot_obsbench.encoders import EncoderContext, EncoderOutput, available_encoders, encoder_output, make_encoder
 from lerobot_obsbench.presets import model_sizes
 from lerobot_obsbench.schema import PointCloud, available_spaces, input_channels, single_spaces
+from tests.support.helpers import CAM, frame_batch
 
 IMAGE_SPACES = single_spaces(lambda s: s.image)
 POINT_SPACES = single_spaces(lambda s: s.points)
-from tests.support.helpers import CAM, frame_batch
 
 
 def _cloud(n: int, channels: int, batch: int = 2, seed: int = 0) -> PointCloud:
