@@ -152,13 +152,14 @@ def available_spaces(where=None) -> tuple[str, ...]:
     return tuple(name for name, space in _SPACES.items() if where is None or where(space))
 
 
-_POSITIONS = (IMAGE_PREFIX, DEPTH_PREFIX, INTRINSICS_PREFIX, CAM2WORLD_PREFIX)
 # The paper's spaces: rgb, metric depth, rgb ‖ depth, rgb ‖ xyz (a pointmap), a point cloud.
 register_space(Space("rgb", (IMAGE_PREFIX,), image_channels=3, image=True, colour=True))
 register_space(Space("depth", (DEPTH_PREFIX,), image_channels=1, image=True, depth=True))
 register_space(Space("rgbd", (IMAGE_PREFIX, DEPTH_PREFIX), image_channels=4, image=True, colour=True, depth=True))
-register_space(Space("pointmap", _POSITIONS, image_channels=6, image=True, colour=True, depth=True, positions=True))
-register_space(Space("pointcloud", _POSITIONS, positions=True, points=True))
+register_space(
+    Space("pointmap", SENSOR_PREFIXES, image_channels=6, image=True, colour=True, depth=True, positions=True)
+)
+register_space(Space("pointcloud", SENSOR_PREFIXES, positions=True, points=True))
 register_space(fused_space("rgb", "pointcloud"))
 # The blind control: the same proprioception and goal, no visual observation at all.
 register_space(Space("none", control="blind"))
