@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import itertools
 import json
-from dataclasses import dataclass, field
+from dataclasses import MISSING, dataclass, fields
 from pathlib import Path
 
 import yaml
@@ -24,6 +24,7 @@ from lerobot_obsbench.bench.grid_checks import (
     check_tasks,
     check_values,
     choose,
+    grid_field,
     refuse_named_policies,
     resolve_augmentations,
     resolve_encoders,
@@ -46,70 +47,77 @@ from lerobot_obsbench.rlbench.evaluate import MAX_STEPS as RLBENCH_MAX_STEPS
 from lerobot_obsbench.rlbench.evaluate import camera_view_for
 from lerobot_obsbench.rlbench.paper_tasks import WORKSPACE as RLBENCH_WORKSPACE
 from lerobot_obsbench.rlbench.paper_tasks import grid_task_name
-from lerobot_obsbench.schema import POLICY_TYPES, available_spaces, is_control, reads_points
+from lerobot_obsbench.schema import MIN_IMAGE_SIZE, POLICY_TYPES, available_spaces, is_control, reads_points
+
+COUNT = {"whole": True, "minimum": 1}  # a count of one or more
+SOME = {"whole": True, "minimum": 0}  # a count, none allowed
+POSITIVE = {"above": 0}
 
 
 @dataclass
 class Grid:
-    """A parsed, validated grid file (fields: docs/benchmark.md)."""
+    """A parsed, validated grid file (fields: docs/benchmark.md); each field's check is written beside it
+    (`grid_field`, bench/grid_checks.py)."""
 
-    name: str
-    tasks: list[str]
-    obs_spaces: list[str]
-    policies: list[str]
-    seeds: list[int]
-    learning_rates: list[float]
-    demos: list[int]
-    preset: str = "cpu"
-    encoders: dict[str, list[str]] = field(default_factory=dict)  # obs_space -> encoders
+    name: str = grid_field(text=True)
+    tasks: list[str] = grid_field(resolved=True)
+    obs_spaces: list[str] = grid_field(resolved=True)
+    policies: list[str] = grid_field(["obs_act"], resolved=True)
+    seeds: list[int] = grid_field([1000], number=SOME, shape="axis")
+    learning_rates: list[float] = grid_field([1e-4], number=POSITIVE, shape="axis")
+    demos: list[int] = grid_field([100], number=COUNT, shape="axis")
+    preset: str = grid_field("cpu", text=True, resolved=True)
+    encoders: dict[str, list[str]] = grid_field({}, resolved=True)  # obs_space -> encoders
     # obs_space -> training augmentation recipes (`--policy.augment`; "" = none), each a method of its own in the
     # report; a space not listed trains without augmentation
-    augmentations: dict[str, list[str]] = field(default_factory=dict)
+    augmentations: dict[str, list[str]] = grid_field({}, resolved=True)
     # training budget: exactly one unit per policy (module docstring); a number or a mapping policy -> number
-    steps: float | dict[str, float] | None = None
-    samples: float | dict[str, float] | None = None
-    demo_epochs: float | dict[str, float] | None = None
-    frame_epochs: float | dict[str, float] | None = None
+    steps: float | dict[str, float] | None = grid_field(None, number=POSITIVE, shape="per_policy")
+    samples: float | dict[str, float] | None = grid_field(None, number=POSITIVE, shape="per_policy")
+    demo_epochs: float | dict[str, float] | None = grid_field(None, number=POSITIVE, shape="per_policy")
+    frame_epochs: float | dict[str, float] | None = grid_field(None, number=POSITIVE, shape="per_policy")
     # task -> its own budget in the unit its policies are given (e.g. {PickCube-v1: 30000}), for every space alike:
     # a task that needs more steps than the others before its oracle clears blind
-    task_budgets: dict[str, float] = field(default_factory=dict)
-    batch_size: int | dict[str, int] = 32
+    task_budgets: dict[str, float] = grid_field({}, number=POSITIVE, shape="per_task")
+    batch_size: int | dict[str, int] = grid_field(32, number=COUNT, shape="per_policy")
     # evenly spaced checkpoints saved during training (for resuming and for checkpoint selection)
-    checkpoints: int | dict[str, int] = 4
+    checkpoints: int | dict[str, int] = grid_field(4, number=COUNT, shape="per_policy")
     # > 0: every checkpoint is evaluated on this many validation episodes and the best one is also evaluated
     # on the test seeds (the report shows it by default); 0: the last checkpoint only
-    validation_episodes: int = 0
+    validation_episodes: int = grid_field(0, number=SOME)
     # optimizer steps whose checkpoints the test seeds also evaluate (the nominal scene): each run's learning curve,
     # ending at its last checkpoint; a run's curve has the steps below its budget (each step must lie below some
     # run's). The checkpoints are saved besides `checkpoints`' and kept
-    eval_checkpoints: list[int] = field(default_factory=list)
+    eval_checkpoints: list[int] = grid_field([], number=COUNT, shape="list")
     # demonstrations recorded beyond the most any run trains on, never trained on: each trained run's diagnostics
     # (open-loop action error, objects' pixel size and point-token share; bench/diagnostics.py) are computed on
     # them. 0: no diagnostics but the loss curve
-    held_out_demos: int = 0
-    image_size: int = 128
-    cameras: list[str] = field(default_factory=lambda: ["base_camera"])
-    control_mode: str = DEFAULT_CONTROL_MODE
-    eval_episodes: int = 50
+    held_out_demos: int = grid_field(0, number=SOME)
+    image_size: int = grid_field(128, number={"whole": True, "minimum": MIN_IMAGE_SIZE})
+    cameras: list[str] = grid_field(["base_camera"], names=True)
+    control_mode: str = grid_field(DEFAULT_CONTROL_MODE, text=True)
+    eval_episodes: int = grid_field(50, number=COUNT)
     # ManiSkill evaluations: episodes run in lockstep, each env in a process of its own, one batched policy call
     # per step (envs/evaluate.py); None: the measured default for the device. Not part of a run's identity.
-    eval_batch_size: int | None = None
+    eval_batch_size: int | None = grid_field(None, number=COUNT)
     # steps per evaluation episode; None: each task's own budget
-    episode_length: int | None = None
-    perturbations: list[str] = field(default_factory=list)
-    policy_overrides: dict[str, object] = field(default_factory=dict)
+    episode_length: int | None = grid_field(None, number=COUNT)
+    perturbations: list[str] = grid_field([], names=True)
+    policy_overrides: dict[str, object] = grid_field({}, mapping="--policy.* fields to values, e.g. {use_vae: false}")
     # obs_space -> `--policy.*` fields for that space's runs only (e.g. {rgb: {encoder_norm: batch}}), applied over
     # policy_overrides
-    space_overrides: dict[str, dict[str, object]] = field(default_factory=dict)
-    variants: list[dict[str, object]] = field(default_factory=lambda: [{}])  # extra --policy.* sets, one axis
+    space_overrides: dict[str, dict[str, object]] = grid_field(
+        {}, mapping="spaces to --policy.* fields, e.g. {rgb: {encoder_norm: batch}}"
+    )
+    variants: list[dict[str, object]] = grid_field([{}])  # extra --policy.* sets, one axis
     # evaluate the checkpoints another grid trained (its output directory) instead of training
-    checkpoints_from: str | None = None
+    checkpoints_from: str | None = grid_field(None, text=True)
     # RLBench tasks (`rlbench/<task>`): PerAct-format data, DIR/train/<task> imported as the demonstrations,
     # DIR/test/<task> (and DIR/val/<task> for validation_episodes) replayed by the evaluation protocol
-    rlbench_data: str | None = None
+    rlbench_data: str | None = grid_field(None, text=True)
     # RLBench: CLIP ViT-B/16 weights (a local file) for the language goal; None: no language goal
-    clip_weights: str | None = None
-    description: str = ""
+    clip_weights: str | None = grid_field(None, text=True)
+    description: str = grid_field("", text=True)
 
     def per_policy(self, name: str, policy: str):
         value = getattr(self, name)
@@ -206,14 +214,10 @@ def task_overrides(task: str, obs_space: str) -> dict[str, object]:
     return {"workspace": list(workspace)} if workspace is not None and reads_points(obs_space) else {}
 
 
-GRID_FIELDS = set(Grid.__dataclass_fields__)
-PER_POLICY = ("batch_size", "checkpoints", *BUDGET_UNITS)
-
-
-# the fields parse_grid turns into their values itself; every other grid field passes to Grid as written
-PARSED_FIELDS = frozenset(
-    "name tasks obs_spaces policies seeds learning_rates demos preset encoders augmentations".split()
-)
+GRID_FIELDS = fields(Grid)
+GRID_FIELD_NAMES = frozenset(spec.name for spec in GRID_FIELDS)
+# the fields parse_grid resolves against the registries itself; every other field passes to Grid as checked
+RESOLVED_FIELDS = frozenset(spec.name for spec in GRID_FIELDS if spec.metadata["resolved"])
 
 
 def parse_grid(data: dict, name: str = "grid") -> Grid:
@@ -223,41 +227,36 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
     tasks = as_list(values.get("tasks"), "tasks")
     rlbench = check_tasks(values, tasks, name)
     spaces = choose(as_list(values.get("obs_spaces"), "obs_spaces"), list(available_spaces()), "obs_spaces")
-    policies = as_list(values.get("policies", ["obs_act"]), "policies")
+    policies = as_list(values.get("policies", _default("policies")), "policies")
     refuse_named_policies(policies, name)
     choose(policies, list(POLICY_TYPES), "policies")
-    preset = values.get("preset", "cpu")
+    preset = values.get("preset", _default("preset"))
     choose([preset], list(PRESETS), "preset")
-    for key in PER_POLICY:
-        if isinstance(values.get(key), dict):
-            choose(list(values[key]), list(policies), f"policies in {key}")
-    task_budgets = values.get("task_budgets", {})
-    if not isinstance(task_budgets, dict):
-        raise GridError(
-            f"{name}: task_budgets maps tasks to budgets, e.g. {{PickCube-v1: 30000}}; got {task_budgets!r}"
-        )
-    choose(list(task_budgets), tasks, "tasks in task_budgets")
-    check_values(values, name)
+    check_values(values, GRID_FIELDS, {"policies": policies, "tasks": tasks}, name)
+    if "learning_rates" in values:
+        values["learning_rates"] = [float(lr) for lr in values["learning_rates"]]
     for task in [] if rlbench else tasks:
         try:
-            check_cameras(task_spec(task), values.get("cameras", ["base_camera"]))
+            check_cameras(task_spec(task), values.get("cameras", _default("cameras")))
         except TaskError as err:
             raise GridError(f"{name}: {err}") from None
     grid = Grid(
-        name=str(values["name"]),
         tasks=tasks,
         obs_spaces=spaces,
         policies=policies,
-        seeds=as_list(values.get("seeds", [1000]), "seeds"),
-        learning_rates=[float(lr) for lr in as_list(values.get("learning_rates", [1e-4]), "learning_rates")],
-        demos=as_list(values.get("demos", [100]), "demos"),
         preset=preset,
         encoders=resolve_encoders(values.get("encoders"), spaces, preset, name),
         augmentations=resolve_augmentations(values.get("augmentations"), spaces, name),
-        **{k: values[k] for k in GRID_FIELDS - PARSED_FIELDS if k in values},
+        **{key: value for key, value in values.items() if key not in RESOLVED_FIELDS},
     )
     _check_grid(grid, bool(rlbench), name)
     return grid
+
+
+def _default(field_name: str):
+    """The default of a Grid field (a fresh copy of a list or mapping)."""
+    spec = Grid.__dataclass_fields__[field_name]
+    return spec.default if spec.default_factory is MISSING else spec.default_factory()
 
 
 def _check_field_names(data, name: str) -> None:
@@ -269,9 +268,9 @@ def _check_field_names(data, name: str) -> None:
             f"{name}: `epochs` is ambiguous; write `demo_epochs` (the paper's: one sampled frame per demonstration "
             "per epoch) or `frame_epochs` (every frame of every demonstration), or `steps` / `samples`"
         )
-    unknown = sorted(set(data) - GRID_FIELDS)
+    unknown = sorted(set(data) - GRID_FIELD_NAMES)
     if unknown:
-        raise GridError(f"{name}: unknown grid fields {unknown}; valid fields: {', '.join(sorted(GRID_FIELDS))}")
+        raise GridError(f"{name}: unknown grid fields {unknown}; valid fields: {', '.join(sorted(GRID_FIELD_NAMES))}")
 
 
 def _check_grid(grid: Grid, rlbench: bool, name: str) -> None:
@@ -284,8 +283,6 @@ def _check_grid(grid: Grid, rlbench: bool, name: str) -> None:
             parse_perturbation(text)
         except ValueError as err:
             raise GridError(f"{name}: {err}") from None
-    if len(set(grid.perturbations)) != len(grid.perturbations):
-        raise GridError(f"{name}: perturbations are listed twice: {grid.perturbations}")
     if rlbench:
         for text in grid.perturbations:
             try:
@@ -299,14 +296,13 @@ def _check_grid(grid: Grid, rlbench: bool, name: str) -> None:
         )
     if not grid.variants or not all(isinstance(v, dict) for v in grid.variants):
         raise GridError(f"{name}: variants is a list of mappings of --policy.* fields, e.g. [{{}}, {{sampling: pre}}]")
-    check_listed_once(grid.variants, "variants", name)
     _check_curve(grid, name)
-    for where, fields in (
+    for where, overrides in (
         ("policy_overrides", grid.policy_overrides),
         *((f"space_overrides.{space}", v) for space, v in grid.space_overrides.items()),
         *(("variants", v) for v in grid.variants),
     ):
-        clash = sorted(set(fields) & set(AXIS_FIELDS))
+        clash = sorted(set(overrides) & set(AXIS_FIELDS))
         if clash:
             field_name = clash[0]
             raise GridError(

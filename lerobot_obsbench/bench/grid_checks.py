@@ -5,7 +5,10 @@ refusal is a `GridError` naming the field and the valid choices."""
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import json
+from dataclasses import MISSING, field
 
 from lerobot_obsbench.bench.specs import GridError
 from lerobot_obsbench.envs.base_task import TASKS, task_spec
@@ -14,7 +17,7 @@ from lerobot_obsbench.presets import preset_encoder
 from lerobot_obsbench.rlbench.paper_tasks import CAMERAS as RLBENCH_CAMERAS
 from lerobot_obsbench.rlbench.paper_tasks import IMAGE_SIZE as RLBENCH_IMAGE_SIZE
 from lerobot_obsbench.rlbench.paper_tasks import RLBenchTaskError, grid_task_name, rlbench_task
-from lerobot_obsbench.schema import MIN_IMAGE_SIZE, is_control
+from lerobot_obsbench.schema import is_control
 
 
 def as_list(value, name: str) -> list:
@@ -132,61 +135,68 @@ def check_listed_once(values: list, field_name: str, name: str, written: list | 
         )
 
 
-# Numeric grid fields and their bounds, as lerobot_obsbench.numeric.check_number (the project's one rule for
-# numbers) takes them; lists and per-policy mappings are checked value by value. Booleans and strings are refused
-# (YAML reads `steps: '5'` as a string).
-NUMERIC_FIELDS = {
-    "seeds": {"whole": True, "minimum": 0},
-    "demos": {"whole": True, "minimum": 1},
-    "learning_rates": {"above": 0},
-    "steps": {"above": 0},
-    "samples": {"above": 0},
-    "demo_epochs": {"above": 0},
-    "frame_epochs": {"above": 0},
-    "task_budgets": {"above": 0},
-    "batch_size": {"whole": True, "minimum": 1},
-    "checkpoints": {"whole": True, "minimum": 1},
-    "validation_episodes": {"whole": True, "minimum": 0},
-    "image_size": {"whole": True, "minimum": MIN_IMAGE_SIZE},
-    "eval_episodes": {"whole": True, "minimum": 1},
-    "eval_batch_size": {"whole": True, "minimum": 1},
-    "episode_length": {"whole": True, "minimum": 1},
-    "held_out_demos": {"whole": True, "minimum": 0},
-    "eval_checkpoints": {"whole": True, "minimum": 1},
-}
-TEXT_LIST_FIELDS = ("cameras", "perturbations")
+def grid_field(
+    default=MISSING,
+    *,
+    number: dict | None = None,
+    shape: str = "one",
+    text: bool = False,
+    names: bool = False,
+    mapping: str | None = None,
+    resolved: bool = False,
+):
+    """A `Grid` field with its check written beside its type and default, for `check_values`: `number`, the bounds
+    lerobot_obsbench.numeric.check_number takes (the project's one rule for numbers), applied by `shape` ("one"
+    number; a "list" of them; an "axis", one value or a list of them; "per_policy", a number or a mapping policy ->
+    number; "per_task", a mapping task -> number); `text` (a string), `names` (a list of non-empty strings),
+    `mapping` (a mapping, described in the refusal); `resolved` (parse_grid resolves it against a registry). A list
+    or mapping default is copied for each grid."""
+    meta = {"number": number, "shape": shape, "text": text, "names": names, "mapping": mapping, "resolved": resolved}
+    if isinstance(default, (list, dict)):
+        return field(default_factory=lambda: copy.deepcopy(default), metadata=meta)
+    return field(default=default, metadata=meta)
 
 
-def _checked_number(value, label: str, bounds: dict):
-    """`value` of a numeric grid field (a number, a list or a per-policy or per-task mapping of them) as
-    check_number gives it back: a whole number written 2.0 is 2, so it names the same runs as 2."""
-    if isinstance(value, dict):
+def _checked_number(value, spec: dataclasses.Field, label: str, keys: dict[str, list]):
+    """`value` of a numeric grid field, by its shape, as check_number gives it back: a whole number written 2.0 is
+    2, so it names the same runs as 2."""
+    bounds, shape = spec.metadata["number"], spec.metadata["shape"]
+    if shape == "per_task" and not isinstance(value, dict):
+        raise GridError(f"{label} maps tasks to budgets, e.g. {{PickCube-v1: 30000}}; got {value!r}")
+    if isinstance(value, dict) and shape in ("per_policy", "per_task"):
+        owners = "policies" if shape == "per_policy" else "tasks"
+        choose(list(value), keys[owners], f"{owners} in {spec.name}")
         return {key: check_number(f"{label} of {key}", v, error=GridError, **bounds) for key, v in value.items()}
-    if isinstance(value, (list, tuple)):
+    if shape == "axis" and not isinstance(value, (list, tuple)):
+        return [check_number(label, value, error=GridError, **bounds)]
+    if shape == "axis":
+        as_list(value, spec.name)  # an empty axis is refused
+    if shape in ("axis", "list"):
         return list(check_numbers(label, value, error=GridError, **bounds))
     return check_number(label, value, error=GridError, **bounds)
 
 
-def check_values(values: dict, name: str) -> None:
-    """Type and range of every numeric and text field, before anything is built or run; each number in `values` is
-    replaced by its checked value."""
-    for key, bounds in NUMERIC_FIELDS.items():
-        if values.get(key) is not None:
-            values[key] = _checked_number(values[key], f"{name}: {key}", bounds)
-    for key in TEXT_LIST_FIELDS:
-        value = values.get(key, [])
-        if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
-            raise GridError(f"{name}: {key} is a list of names, e.g. [base_camera]; got {value!r}")
-    for key in ("name", "description", "preset", "control_mode", "checkpoints_from", "rlbench_data", "clip_weights"):
-        if key in values and values[key] is not None and not isinstance(values[key], str):
-            raise GridError(f"{name}: {key} is text; got {values[key]!r}")
-    for key in ("tasks", "obs_spaces", "policies", *NUMERIC_FIELDS, *TEXT_LIST_FIELDS):
-        if isinstance(values.get(key), list):
-            check_listed_once(values[key], key, name)
-    if not isinstance(values.get("policy_overrides", {}), dict):
-        raise GridError(f"{name}: policy_overrides is a mapping of --policy.* fields to values")
-    per_space = values.get("space_overrides", {})
-    if not isinstance(per_space, dict) or not all(isinstance(v, dict) for v in per_space.values()):
+def check_values(values: dict, fields: tuple[dataclasses.Field, ...], keys: dict[str, list], name: str) -> None:
+    """Type and range of every field given, by the check written beside it (`grid_field`), before anything is
+    built or run; each number in `values` is replaced by its checked value. `keys`: the grid's policies and tasks,
+    which per-policy and per-task mappings name."""
+    for spec in fields:
+        value = values.get(spec.name)
+        if value is None:
+            continue
+        label = f"{name}: {spec.name}"
+        if spec.metadata["number"] is not None:
+            values[spec.name] = value = _checked_number(value, spec, label, keys)
+        if spec.metadata["names"] and not (isinstance(value, list) and all(isinstance(v, str) and v for v in value)):
+            raise GridError(f"{label} is a list of names, e.g. [base_camera]; got {value!r}")
+        if spec.metadata["text"] and not isinstance(value, str):
+            raise GridError(f"{label} is text; got {value!r}")
+        if spec.metadata["mapping"] and not isinstance(value, dict):
+            raise GridError(f"{label} maps {spec.metadata['mapping']}; got {value!r}")
+        if isinstance(value, list):
+            check_listed_once(value, spec.name, name)
+    per_space = values.get("space_overrides") or {}
+    if not all(isinstance(v, dict) for v in per_space.values()):
         raise GridError(
             f"{name}: space_overrides maps spaces to --policy.* fields, e.g. {{rgb: {{encoder_norm: batch}}}}"
         )

@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
-from lerobot_obsbench.bench.grid import load_grid, parse_grid, preset_grids
-from lerobot_obsbench.bench.grid_checks import NUMERIC_FIELDS
+from lerobot_obsbench.bench.grid import GRID_FIELDS, load_grid, parse_grid, preset_grids
 from lerobot_obsbench.bench.results import append_result
 from lerobot_obsbench.bench.specs import AXIS_FIELDS, EvalSpec, GridError, RunSpec
 from lerobot_obsbench.bench.units import demo_dir, kept_checkpoints, save_freq, train_command
@@ -291,16 +290,18 @@ def test_bad_grid_values_are_refused_by_the_dry_run(tmp_path, capsys, field, tex
 def test_grid_numbers_are_refused_by_the_projects_one_rule_in_its_words():
     """Every grid number goes through lerobot_obsbench.numeric: what check_number refuses, the grid refuses with
     its words (NaN, infinities, out of range, a bool, text)."""
-    for field, bounds in NUMERIC_FIELDS.items():
-        per_task = field == "task_budgets"  # a mapping task -> number only
-        label = f"{field} of PushCube-v1" if per_task else field
+    numeric = [spec for spec in GRID_FIELDS if spec.metadata["number"] is not None]
+    assert {"seeds", "steps", "task_budgets", "eval_checkpoints", "image_size"} <= {spec.name for spec in numeric}
+    for spec in numeric:
+        bounds, shape = spec.metadata["number"], spec.metadata["shape"]
+        label = f"{spec.name} of PushCube-v1" if shape == "per_task" else spec.name
         for value in (float("nan"), float("inf"), -1, 0, 0.5, True, "3"):
             try:
                 check_number(label, value, **bounds)
             except ValueError as refusal:
-                written = {"PushCube-v1": value} if per_task else value
+                written = {"per_task": {"PushCube-v1": value}, "axis": [value], "list": [value]}.get(shape, value)
                 with pytest.raises(GridError) as err:
-                    parse_grid({**BASE, field: [value] if field in ("seeds", "demos", "learning_rates") else written})
+                    parse_grid({**BASE, spec.name: written})
                 assert str(err.value).replace("[0]", "") == f"grid: {refusal}"
 
 
