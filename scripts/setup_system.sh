@@ -3,6 +3,7 @@
 # - the simulator: SAPIEN renders through Vulkan, and bookworm's own lavapipe (Mesa 22) lacks
 #   descriptorBindingPartiallyBound, so Mesa 25's lavapipe comes from Debian's bookworm-backports suite, added to
 #   the machine's existing Debian apt source (its mirror is kept);
+# - Meta-World's cameras: MuJoCo renders through headless OpenGL, Mesa's EGL (llvmpipe), from the same Mesa;
 # - RealSense cameras: pyrealsense2 loads libusb-1.0 (Debian's libusb-1.0-0);
 # - video decoding: torchcodec, LeRobot's default decoder (stock tools such as lerobot-dataset-viz use it), loads
 #   FFmpeg's shared libraries (bookworm's FFmpeg 5.1).
@@ -29,16 +30,18 @@ installed() {
 
 FFMPEG_LIBS="libavutil57 libavcodec59 libavformat59 libavdevice59 libavfilter8 libswscale6 libswresample4"
 
-if lavapipe_ok && installed libusb-1.0-0 && installed $FFMPEG_LIBS; then
-    echo "setup_system: Mesa lavapipe $(dpkg-query -W -f='${Version}' mesa-vulkan-drivers), libusb-1.0-0 and FFmpeg's libraries already installed"
+EGL_PACKAGES="libegl1 libegl-mesa0 libgl1-mesa-dri"
+
+if lavapipe_ok && installed $EGL_PACKAGES libusb-1.0-0 $FFMPEG_LIBS; then
+    echo "setup_system: Mesa lavapipe $(dpkg-query -W -f='${Version}' mesa-vulkan-drivers), Mesa's EGL, libusb-1.0-0 and FFmpeg's libraries already installed"
     exit 0
 fi
 export DEBIAN_FRONTEND=noninteractive
 
-if ! lavapipe_ok; then
+if ! lavapipe_ok || ! installed $EGL_PACKAGES; then
     if [ ! -f "$SOURCES" ]; then
         echo "setup_system: $SOURCES not found. Add Debian's bookworm-backports suite to your apt sources, then run:" >&2
-        echo "  apt-get update && apt-get install -y -t bookworm-backports mesa-vulkan-drivers libvulkan1" >&2
+        echo "  apt-get update && apt-get install -y -t bookworm-backports mesa-vulkan-drivers libvulkan1 $EGL_PACKAGES" >&2
         exit 1
     fi
     if ! grep -q "bookworm-backports" "$SOURCES"; then
@@ -46,8 +49,9 @@ if ! lavapipe_ok; then
         $SUDO sed -i '0,/^Suites:.*bookworm-updates.*$/s//& bookworm-backports/' "$SOURCES"
     fi
     $SUDO apt-get update -qq
-    $SUDO apt-get install -y -qq -t bookworm-backports mesa-vulkan-drivers libvulkan1 >/dev/null
-    echo "setup_system: installed Mesa lavapipe $(dpkg-query -W -f='${Version}' mesa-vulkan-drivers)"
+    # shellcheck disable=SC2086
+    $SUDO apt-get install -y -qq -t bookworm-backports mesa-vulkan-drivers libvulkan1 $EGL_PACKAGES >/dev/null
+    echo "setup_system: installed Mesa lavapipe and EGL $(dpkg-query -W -f='${Version}' mesa-vulkan-drivers)"
 fi
 if ! installed libusb-1.0-0 $FFMPEG_LIBS; then
     $SUDO apt-get update -qq

@@ -1,0 +1,141 @@
+"""Meta-World tasks as OBSBench tasks: LeRobot's task list, the sensor schema's geometry on MuJoCo's frames (every
+camera's cloud on the model's true surfaces, in millimetres), seeded resets, the scripted expert, and the refusals
+that come before anything slow."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from lerobot_obsbench import geometry, schema
+from lerobot_obsbench.envs.base_task import TaskError
+from lerobot_obsbench.envs.metaworld.env import STATE_SIZE, MetaWorldEnv
+from lerobot_obsbench.envs.metaworld.rendering import choose_gl
+from lerobot_obsbench.envs.metaworld.tasks import CAMERAS, metaworld_task, metaworld_tasks, tasks_of
+from tests.support.paths import REPO_ROOT
+
+TASK = "drawer-open-v3"
+
+
+def test_the_task_list_is_lerobots_with_dp3s_groups():
+    import json
+    from importlib import resources
+
+    lerobot = json.loads(resources.files("lerobot.envs").joinpath("metaworld_config.json").read_text())
+    assert list(metaworld_tasks()) == list(lerobot["TASK_DESCRIPTIONS"])
+    assert tasks_of("easy") == lerobot["DIFFICULTY_TO_TASKS"]["easy"]
+    assert metaworld_task("metaworld-drawer-open-v3").expert == "SawyerDrawerOpenV3Policy"
+
+
+def test_an_unknown_task_or_camera_is_refused_with_the_close_names():
+    with pytest.raises(TaskError, match=r"unknown Meta-World task 'drawer-opn-v3'; did you mean drawer-open-v3"):
+        metaworld_task("drawer-opn-v3")
+    started = time.perf_counter()
+    with pytest.raises(TaskError, match=r"has no camera 'wrist'; its cameras: topview, corner, corner2"):
+        MetaWorldEnv(TASK, cameras=["wrist"])
+    assert time.perf_counter() - started < 1  # refused before Meta-World builds its simulation
+
+
+def _refusal(environment: dict) -> subprocess.CompletedProcess:
+    code = f"from lerobot_obsbench.envs.metaworld.env import MetaWorldEnv; MetaWorldEnv({TASK!r})"
+    return subprocess.run(
+        [sys.executable, "-c", code], env=environment, cwd=REPO_ROOT, capture_output=True, text=True, timeout=120
+    )
+
+
+def test_no_headless_gl_is_one_line_naming_what_to_install():
+    """EGL with no vendor library to load (what a machine without Mesa's EGL has), and a back-end MuJoCo lacks."""
+    no_egl = {**os.environ, "MUJOCO_GL": "egl", "__EGL_VENDOR_LIBRARY_FILENAMES": "/nonexistent/egl_vendor.json"}
+    result = _refusal(no_egl)
+    assert result.returncode != 0
+    last = result.stderr.strip().splitlines()[-1]
+    assert last.startswith("lerobot_obsbench.envs.metaworld.rendering.HeadlessGLError: MuJoCo could not open")
+    assert "libegl-mesa0" in last and "MUJOCO_GL=osmesa" in last
+    result = _refusal({**os.environ, "MUJOCO_GL": "wgl"})
+    assert "HeadlessGLError: MUJOCO_GL='wgl' is not one of MuJoCo's back-ends" in result.stderr
+
+
+def _surface_distance(model, data, geom: int, points: np.ndarray) -> np.ndarray:
+    """Distance (m) of world points to a box or plane geom's surface (a box's signed-distance function)."""
+    import mujoco
+
+    local = (points - data.geom_xpos[geom]) @ data.geom_xmat[geom].reshape(3, 3)
+    if model.geom_type[geom] == mujoco.mjtGeom.mjGEOM_PLANE:
+        return np.abs(local[:, 2])
+    outside = np.abs(local) - model.geom_size[geom]
+    return np.abs(np.linalg.norm(np.maximum(outside, 0), axis=1) + np.minimum(outside.max(axis=1), 0))
+
+
+@pytest.mark.parametrize("camera", CAMERAS)
+def test_every_cameras_cloud_lies_on_the_models_surfaces(camera):
+    """Depth + K + cam2world, unprojected by the plugin's geometry, put every pixel that shows a box or a plane
+    (the table, its walls, the floor, the drawer's case...) on that geom's true surface: within the millimetre the
+    uint16 depth is rounded to."""
+    choose_gl()
+    import mujoco
+    import torch
+
+    env = MetaWorldEnv(TASK, cameras=[camera], image_size=96)
+    env.reset(seed=1)
+    frame = env.schema_frame()
+    shows = env.segmentation(camera)
+    model, data = env._env.model, env._env.data
+
+    depth = torch.from_numpy(frame[schema.depth_key(camera)][..., 0].astype(np.float32) / 1000)[None]
+    intrinsics = torch.from_numpy(frame[schema.intrinsics_key(camera)])[None]
+    cam2world = torch.from_numpy(frame[schema.cam2world_key(camera)])[None]
+    world = geometry.transform_points(geometry.unproject_depth(depth, intrinsics), cam2world)[0].numpy()
+    flat = (mujoco.mjtGeom.mjGEOM_BOX, mujoco.mjtGeom.mjGEOM_PLANE)
+    measured = (depth[0].numpy() > 0) & (shows >= 0) & np.isin(model.geom_type[np.maximum(shows, 0)], flat)
+    distances = np.concatenate(
+        [_surface_distance(model, data, g, world[measured & (shows == g)]) for g in np.unique(shows[measured])]
+    )
+    env.close()
+    millimetres = distances * 1000
+    print(
+        f"{camera}: {measured.sum()} points on {len(np.unique(shows[measured]))} boxes/planes, distance to the "
+        f"surface median {np.median(millimetres):.3f} mm, p95 {np.percentile(millimetres, 95):.3f}, "
+        f"max {millimetres.max():.3f}"
+    )
+    assert measured.sum() > 1000
+    assert millimetres.max() < 1.0
+
+
+def test_a_frame_has_the_schemas_keys_and_a_seed_places_the_objects():
+    env = MetaWorldEnv(TASK, cameras=["corner2"], image_size=64)
+    try:
+        obs, info = env.reset(seed=7)
+        frame = schema.env_observation_to_frame(obs)
+        assert frame[schema.image_key("corner2")].shape == (64, 64, 3)
+        assert frame[schema.depth_key("corner2")].dtype == np.uint16
+        assert frame[schema.STATE_KEY].shape == (STATE_SIZE,)
+        hand = env._env.data.body("hand").xpos
+        np.testing.assert_allclose(frame[schema.STATE_KEY][-7:-4], hand, atol=1e-6)  # the EE pose last
+        assert env.privileged_state_names[-7:] == [f"goal.{c}" for c in schema.POSE_COMPONENTS]
+        first = frame[schema.PRIVILEGED_STATE_KEY]
+        again = schema.env_observation_to_frame(env.reset(seed=7)[0])
+        other = schema.env_observation_to_frame(env.reset(seed=8)[0])
+        np.testing.assert_array_equal(again[schema.PRIVILEGED_STATE_KEY], first)
+        np.testing.assert_array_equal(again[schema.depth_key("corner2")], frame[schema.depth_key("corner2")])
+        assert not np.allclose(other[schema.PRIVILEGED_STATE_KEY], first)
+    finally:
+        env.close()
+
+
+def test_the_scripted_expert_solves_its_task_with_nothing_rendered():
+    env = MetaWorldEnv(TASK, cameras=[])
+    try:
+        obs, _ = env.reset(seed=3)
+        assert "pixels" not in obs or not obs["pixels"]
+        steps, terminated, truncated = 0, False, False
+        while not (terminated or truncated) and steps < 200:
+            obs, _, terminated, truncated, info = env.step(env.expert_action())
+            steps += 1
+        assert info["is_success"] and terminated and steps < 200
+    finally:
+        env.close()
