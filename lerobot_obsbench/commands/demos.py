@@ -1,5 +1,5 @@
-"""`obsbench demos`: successful scripted-expert demonstrations of a ManiSkill task into a LeRobotDataset
-(`datasets.sim_demos`; resumable)."""
+"""`obsbench demos`: successful scripted-expert demonstrations of a ManiSkill or Meta-World task into a
+LeRobotDataset (`datasets.sim_demos`; resumable)."""
 
 from __future__ import annotations
 
@@ -23,12 +23,14 @@ INTERRUPTED = "the recorded episodes are kept in --out; run the same command to 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from lerobot_obsbench.envs.base_task import DEMO_SEED_START
 
-    p.add_argument("--task", required=True)
+    p.add_argument("--task", required=True, help="a ManiSkill task (PickCube-v1) or a Meta-World one (drawer-open-v3)")
     p.add_argument("--episodes", type=positive_int, required=True)
     p.add_argument("--out", type=Path, required=True, help="dataset folder: new, empty, or this recording's (resumed)")
     p.add_argument("--overwrite", action="store_true", help="delete what --out holds first")
     p.add_argument("--image-size", type=frame_size, default=128)
-    p.add_argument("--cameras", nargs="+", default=["base_camera"])
+    p.add_argument(
+        "--cameras", nargs="+", default=None, help="default: ManiSkill's base_camera, Meta-World's corner2 (LeRobot's)"
+    )
     p.add_argument(
         "--seed-start",
         type=number_argument(whole=True, minimum=DEMO_SEED_START),

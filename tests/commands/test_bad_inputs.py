@@ -478,7 +478,17 @@ def preset_of_a_typo(root: Path) -> list[str]:
     return ["preset", "--preset", "papper"]
 
 
+def demos_of_a_metaworld_typo(root: Path) -> list[str]:
+    return ["demos", "--task", "drawer-opn-v3", "--episodes", "2", "--out", str(root / "drawer")]
+
+
+def demos_of_a_metaworld_camera_typo(root: Path) -> list[str]:
+    return ["demos", "--task", "drawer-open-v3", "--episodes", "2", "--out", str(root / "d"), "--cameras", "wrist"]
+
+
 ROWS = [
+    (demos_of_a_metaworld_typo, ["unknown Meta-World task 'drawer-opn-v3'; did you mean drawer-open-v3"]),
+    (demos_of_a_metaworld_camera_typo, ["drawer-open-v3 has no camera 'wrist'", "corner2"]),
     (demos_over_another_dataset, ["--out", "is not empty (data, meta)", "--overwrite"]),
     (demos_with_another_image_size, ["other settings (image_size 64 there, 128 asked)", "--overwrite"]),
     (demos_resuming_another_task, ["interrupted run", "task 'PickCube-v1' there, 'PushCube-v1' asked"]),

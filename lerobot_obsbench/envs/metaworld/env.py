@@ -12,9 +12,9 @@ observation space trains and evaluates on it as on a ManiSkill task.
   (`TURNED_CAMERAS`, as LeRobot shows them);
 - state: the Sawyer's 7 arm joints and 2 finger joints, then the hand's position and orientation (quaternion wxyz):
   16 values, the end-effector pose last as the schema asks;
-- privileged state (the oracle's input): the task's objects as Meta-World's observation gives them (position and
-  quaternion per object slot it fills; its tasks differ in quaternion convention, and the oracle reads one task's
-  at a time), then the goal's position with the identity rotation.
+- privileged state (the oracle's input): Meta-World's two object slots as its observation gives them (position and
+  quaternion each, the second zeros where the task has one object; its tasks differ in quaternion convention, and
+  the oracle reads one task's at a time), then the goal's position with the identity rotation.
 
 Only what the policy reads is rendered: `cameras` (none for the blind and oracle controls) and, of each, the
 `sensors` it reads (colour, depth, or both). `reset(seed=s)` places the objects from `s` alone (Meta-World's seeded
@@ -57,8 +57,7 @@ HAND_BODY = "hand"
 STATE_SIZE = len(ARM_JOINTS) + len(FINGER_JOINTS) + POSE_SIZE
 ACTION_SIZE = 4  # the hand's displacement (x, y, z) and the gripper's effort, each in [-1, 1]
 DEPTH_LIMIT = 10.0  # metres: farther is no surface of the scene (the sky, the far plane) and is stored as 0
-OBJECT_SLOTS = 2  # Meta-World's observation holds two objects' poses, the second zero where a task has one
-GOAL = "goal"
+OBJECT_SLOTS = slice(4, 18)  # Meta-World's observation: hand (3), gripper (1), then two objects' poses (7 each)
 INSTALL_HELP = "pip install 'lerobot_policy_obsbench[metaworld]' (metaworld 3.0.0, LeRobot's pin, with mujoco 3.3.7)"
 
 
@@ -126,7 +125,7 @@ class MetaWorldEnv(gym.Env):
         self._env.reset()
         self._env._freeze_rand_vec = False  # a new placement at each reset, drawn from the reset's seed
         self._env.seeded_rand_vec = True
-        self.objects = self._object_names()
+        self.objects = self.spec_.privileged_actors
         self._renderer = None
         if self.cameras:
             self._renderer = open_renderer(self._env.model, image_size, image_size)
@@ -134,14 +133,8 @@ class MetaWorldEnv(gym.Env):
         self.observation_space = self._observation_space()
         self._steps = 0
         self._last_obs = None
-        self._expert = None
 
     # ---- what the env observes ---------------------------------------------------------------------------------
-
-    def _object_names(self) -> tuple[str, ...]:
-        """The oracle's objects: one name per object slot the task fills, then the goal."""
-        count = len(self._env._get_pos_objects()) // 3
-        return (*("object" if i == 0 else f"object{i + 1}" for i in range(count)), GOAL)
 
     @property
     def privileged_state_names(self) -> list[str]:
@@ -212,12 +205,16 @@ class MetaWorldEnv(gym.Env):
         return np.concatenate([joints, hand.xpos, hand.xquat]).astype(np.float32)
 
     def _privileged_state(self, obs: np.ndarray) -> np.ndarray:
-        objects = obs[4 : 4 + (len(self.objects) - 1) * POSE_SIZE]
         goal = np.concatenate([self._env._target_pos, [1.0, 0.0, 0.0, 0.0]])
-        return np.concatenate([objects, goal]).astype(np.float32)
+        return np.concatenate([obs[OBJECT_SLOTS], goal]).astype(np.float32)
 
-    def schema_frame(self, obs: np.ndarray | None = None) -> dict[str, np.ndarray]:
-        """The current frame in the schema's keys (what datasets record); `obs`: Meta-World's last observation."""
+    @property
+    def metaworld_observation(self) -> np.ndarray:
+        """Meta-World's own last observation (39 values), which its scripted experts read."""
+        return self._last_obs
+
+    def schema_frame(self) -> dict[str, np.ndarray]:
+        """The current frame in the schema's keys (what datasets record)."""
         frame = {}
         for camera in self.cameras:
             colour, depth = self._render(camera, IMAGE_PREFIX in self.sensors, DEPTH_PREFIX in self.sensors)
@@ -227,7 +224,7 @@ class MetaWorldEnv(gym.Env):
                 frame[depth_key(camera)] = depth
             frame[intrinsics_key(camera)], frame[cam2world_key(camera)] = self.camera_calibration(camera)
         frame[STATE_KEY] = self._state()
-        frame[PRIVILEGED_STATE_KEY] = self._privileged_state(self._last_obs if obs is None else obs)
+        frame[PRIVILEGED_STATE_KEY] = self._privileged_state(self._last_obs)
         return frame
 
     # ---- gym ---------------------------------------------------------------------------------------------------
@@ -248,14 +245,6 @@ class MetaWorldEnv(gym.Env):
         truncated = not success and self._steps >= self.max_steps
         info = {"is_success": success, **{k: float(v) for k, v in info.items() if np.isscalar(v)}}
         return frame_to_env_observation(self.schema_frame()), float(reward), success, truncated, info
-
-    def expert_action(self) -> np.ndarray:
-        """The task's scripted expert's action now (Meta-World's own policy, as LeRobot maps it)."""
-        import metaworld.policies
-
-        if self._expert is None:
-            self._expert = getattr(metaworld.policies, self.spec_.expert)()
-        return np.asarray(self._expert.get_action(self._last_obs), dtype=np.float32)
 
     def render(self):
         """The first camera's colour (none with no camera)."""

@@ -3,15 +3,16 @@ task names, their descriptions, DP3's difficulty groups and each task's scripted
 disagree and LeRobot's Meta-World users find their task names here.
 
 Each task runs with one camera or more of the Sawyer scene's (`CAMERAS`; LeRobot renders `corner2`, moved as it
-moves it). The oracle control reads the poses of the task's objects (one or two; Meta-World's observation holds
-two slots) and of its goal, a position given the identity rotation, so every value of the oracle's input is named
-`<object>.<component>` as on the ManiSkill tasks.
+moves it). The oracle control reads Meta-World's two object slots (the second all zeros where a task has one
+object) and the goal, a position given the identity rotation, so every value of the oracle's input is named
+`<object>.<component>` as on the ManiSkill tasks, and every task's oracle reads the same 21 values.
 """
 
 from __future__ import annotations
 
 import difflib
 import json
+import re
 from dataclasses import dataclass
 from functools import cache
 from importlib import resources
@@ -26,6 +27,11 @@ DEFAULT_CAMERA = "corner2"
 CORNER2_POSITION = (0.75, 0.075, 0.7)
 TURNED_CAMERAS = ("corner2",)
 MAX_STEPS = 500  # Meta-World's episode budget (`max_path_length`), which LeRobot's env keeps
+CONTROL_FPS = 80  # steps per second (LeRobot's Meta-World env: 5 physics steps of 2.5 ms)
+ROBOT_TYPE = "sawyer"
+# The oracle's objects: Meta-World's two object slots, then the goal.
+PRIVILEGED_OBJECTS = ("object", "object2", "goal")
+METAWORLD_PREFIX = "metaworld-"  # LeRobot's task prefix
 DIFFICULTIES = ("easy", "medium", "hard", "very_hard")  # DP3's groups, as LeRobot names them
 
 
@@ -38,6 +44,28 @@ class MetaWorldTask:
     description: str
     difficulty: str
     expert: str
+    privileged_actors: tuple[str, ...] = PRIVILEGED_OBJECTS
+    max_steps: int = MAX_STEPS
+
+    def make_expert(self, env) -> MetaWorldExpert:
+        """The scripted expert driving `env` (a `MetaWorldEnv` of this task)."""
+        return MetaWorldExpert(env)
+
+
+class MetaWorldExpert:
+    """Meta-World's scripted policy for the env's task (`metaworld.policies`, as LeRobot maps it), acting on the
+    env's last Meta-World observation; it never stops on its own (the episode's budget or success ends it)."""
+
+    def __init__(self, env):
+        import metaworld.policies
+
+        self.env = env
+        self.policy = getattr(metaworld.policies, env.spec_.expert)()
+
+    def act(self):
+        import numpy as np
+
+        return np.asarray(self.policy.get_action(self.env.metaworld_observation), dtype=np.float32)
 
 
 @cache
@@ -65,13 +93,19 @@ def tasks_of(difficulty: str) -> list[str]:
     return list(_lerobot_config()["DIFFICULTY_TO_TASKS"].get(difficulty, []))
 
 
+def is_metaworld_name(name: str) -> bool:
+    """Whether `name` is written as a Meta-World task (LeRobot's `metaworld-` prefix, or lower-case words joined
+    by hyphens ending in a version, `drawer-open-v3`), known or not; ManiSkill's are CamelCase (`PickCube-v1`)."""
+    return name.startswith(METAWORLD_PREFIX) or re.fullmatch(r"[a-z0-9]+(-[a-z0-9]+)*-v\d+", name) is not None
+
+
 def metaworld_task(name: str) -> MetaWorldTask:
     """The task named `name` (LeRobot's `metaworld-` prefix accepted); an unknown name is refused with the
     closest names."""
     tasks = metaworld_tasks()
-    task = tasks.get(name.removeprefix("metaworld-"))
+    task = tasks.get(name.removeprefix(METAWORLD_PREFIX))
     if task is None:
-        close = difflib.get_close_matches(name.removeprefix("metaworld-"), list(tasks), n=3, cutoff=0.5)
+        close = difflib.get_close_matches(name.removeprefix(METAWORLD_PREFIX), list(tasks), n=3, cutoff=0.5)
         hint = f"; did you mean {', '.join(close)}?" if close else ""
         raise TaskError(
             f"unknown Meta-World task {name!r}{hint} ({len(tasks)} tasks, LeRobot's names, e.g. drawer-open-v3; "
