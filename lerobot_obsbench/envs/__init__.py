@@ -1,11 +1,12 @@
-"""OBSBench ManiSkill3 tasks: `--env.type=obsbench` and gymnasium ids `obsbench/<task>`.
+"""OBSBench ManiSkill3 tasks: `--env.type=obsbench` and gymnasium ids `obsbench/<task>`; Meta-World's
+(`envs.metaworld`): `--env.type=obsbench_metaworld` and `obsbench_metaworld/<task>`.
 
 Importing this package is cheap: ManiSkill itself is imported only when an env is made.
 """
 
 import gymnasium as gym
 
-from lerobot_obsbench.envs import tasks  # noqa: F401  (registers every task module)
+from lerobot_obsbench.envs import metaworld, tasks  # noqa: F401  (register Meta-World and every task module)
 from lerobot_obsbench.envs.base_task import TASKS, TaskError, eval_seeds, task_spec
 from lerobot_obsbench.envs.configuration import ObsBenchEnvConfig
 

@@ -14,6 +14,7 @@ import pytest
 
 from lerobot_obsbench import geometry, schema
 from lerobot_obsbench.envs.base_task import TaskError
+from lerobot_obsbench.envs.metaworld.configuration import MetaWorldEnvConfig
 from lerobot_obsbench.envs.metaworld.env import STATE_SIZE, MetaWorldEnv
 from lerobot_obsbench.envs.metaworld.rendering import choose_gl
 from lerobot_obsbench.envs.metaworld.tasks import CAMERAS, metaworld_task, metaworld_tasks, tasks_of
@@ -39,6 +40,11 @@ def test_an_unknown_task_or_camera_is_refused_with_the_close_names():
     with pytest.raises(TaskError, match=r"has no camera 'wrist'; its cameras: topview, corner, corner2"):
         MetaWorldEnv(TASK, cameras=["wrist"])
     assert time.perf_counter() - started < 1  # refused before Meta-World builds its simulation
+    # lerobot-eval's env config: refused when parsed, before the policy loads
+    with pytest.raises(TaskError, match=r"did you mean drawer-open-v3"):
+        MetaWorldEnvConfig(task="drawer-opn-v3")
+    with pytest.raises(TaskError, match=r"has no camera 'wrist'"):
+        MetaWorldEnvConfig(task=TASK, cameras=["wrist"])
 
 
 def _refusal(environment: dict) -> subprocess.CompletedProcess:
@@ -144,10 +150,11 @@ def test_the_scripted_expert_solves_its_task_with_nothing_rendered():
 
 
 @pytest.mark.slow
-def test_demonstrations_record_validate_and_view_as_a_point_cloud(tmp_path):
+def test_demonstrations_record_validate_view_train_and_evaluate_with_stock_lerobot(tmp_path):
     """`obsbench demos` on a Meta-World task: Meta-World's expert's successful episodes in the schema (80 fps, the
-    oracle's values named), every space served (`obsbench validate`), a rerun finds them recorded, and `obsbench
-    view` writes the frame's cloud as .ply inside the crop box."""
+    oracle's values named), every space served (`obsbench validate`), a rerun finds them recorded, `obsbench view`
+    writes the frame's cloud as .ply inside the crop box; then stock lerobot-train of the plugin's point-cloud ACT
+    on them and stock lerobot-eval of that checkpoint on `--env.type=obsbench_metaworld`."""
     import json
 
     import open3d as o3d
@@ -171,3 +178,44 @@ def test_demonstrations_record_validate_and_view_as_a_point_cloud(tmp_path):
     assert len(points) > 200
     assert (points.min(axis=0) >= np.array(box[0::2]) - 1e-6).all()
     assert (points.max(axis=0) <= np.array(box[1::2]) + 1e-6).all()
+
+    # stock lerobot-train of the plugin's ACT on point clouds, then stock lerobot-eval on the Meta-World env
+    from lerobot_obsbench.presets import preset_args
+
+    bin_dir = os.path.dirname(sys.executable)
+    environment = {**os.environ, "HF_HUB_OFFLINE": "1", "HF_DATASETS_OFFLINE": "1"}
+    train = [
+        f"{bin_dir}/lerobot-train",
+        "--policy.type=obs_act",
+        "--policy.obs_space=pointcloud",
+        "--policy.device=cpu",
+        "--policy.push_to_hub=false",
+        *preset_args("tiny", "obs_act", "pointcloud"),
+        f"--policy.workspace={box}",
+        "--dataset.repo_id=local/drawer",
+        f"--dataset.root={out}",
+        "--batch_size=4",
+        "--steps=2",
+        "--save_freq=2",
+        "--num_workers=0",
+        "--wandb.enable=false",
+        f"--output_dir={tmp_path / 'train'}",
+    ]
+    trained = subprocess.run(train, env=environment, capture_output=True, text=True, timeout=900)
+    assert trained.returncode == 0, trained.stderr[-3000:]
+    evaluate = [
+        f"{bin_dir}/lerobot-eval",
+        f"--policy.path={tmp_path / 'train' / 'checkpoints' / 'last' / 'pretrained_model'}",
+        "--policy.device=cpu",
+        "--env.type=obsbench_metaworld",
+        f"--env.task={TASK}",
+        "--env.image_size=32",
+        "--env.episode_length=5",
+        "--eval.n_episodes=1",
+        "--eval.batch_size=1",
+        f"--output_dir={tmp_path / 'eval'}",
+    ]
+    evaluated = subprocess.run(evaluate, env=environment, capture_output=True, text=True, timeout=900)
+    assert evaluated.returncode == 0, evaluated.stderr[-3000:]
+    metrics = json.loads((tmp_path / "eval" / "eval_info.json").read_text())["overall"]
+    assert metrics["n_episodes"] == 1 and "pc_success" in metrics

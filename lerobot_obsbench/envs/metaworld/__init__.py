@@ -5,3 +5,19 @@ camera's intrinsics and pose, the robot state, the oracle's object poses) and th
 
 Importing this package is cheap: Meta-World and MuJoCo are imported only when an env is made.
 """
+
+import gymnasium as gym
+
+from lerobot_obsbench.envs.metaworld.configuration import GYM_NAMESPACE, MetaWorldEnvConfig
+from lerobot_obsbench.envs.metaworld.tasks import MAX_STEPS, metaworld_tasks
+
+for _name in metaworld_tasks():
+    if f"{GYM_NAMESPACE}/{_name}" not in gym.registry:
+        gym.register(
+            id=f"{GYM_NAMESPACE}/{_name}",
+            entry_point="lerobot_obsbench.envs.metaworld.env:MetaWorldEnv",
+            kwargs={"task": _name},
+            max_episode_steps=MAX_STEPS,
+        )
+
+__all__ = ["MetaWorldEnvConfig"]
