@@ -20,7 +20,6 @@ import yaml
 
 from lerobot_obsbench.bench.grid_checks import (
     as_list,
-    check_listed_once,
     check_tasks,
     check_values,
     choose,
