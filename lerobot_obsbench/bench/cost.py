@@ -11,7 +11,7 @@ from pathlib import Path
 from lerobot_obsbench.bench.grid import Grid
 from lerobot_obsbench.bench.specs import EvalSpec, RunSpec
 from lerobot_obsbench.bench.units import demo_dir, demo_frames, demos_recorded
-from lerobot_obsbench.envs.base_task import task_spec
+from lerobot_obsbench.envs.catalog import task_record
 from lerobot_obsbench.schema import is_control, reads_points
 
 DEMO_FRAMES_PER_EPISODE = 30  # for estimates before the demonstrations exist
@@ -98,7 +98,7 @@ def demo_seconds(grid: Grid, run: RunSpec, episodes: int, device: str) -> float:
     """Recording `episodes` scripted demonstrations of `run`'s task, one env: an expert's step costs what a
     policy's does in evaluation (the simulator and renderer dominate), and each success comes with the failed
     attempts its expert's success rate implies, each running out the episode's budget."""
-    failed = episodes * (1 / task_spec(run.task).expert_success_rate - 1)
+    failed = episodes * (1 / task_record(run.task).expert_success_rate - 1)
     steps = grid.max_steps(run)
     return episode_seconds(episodes, steps, device, image_size=run.image_size) + episode_seconds(
         failed, steps, device, image_size=run.image_size, used=1.0

@@ -38,7 +38,8 @@ from lerobot_obsbench.bench.specs import (
     GridError,
     RunSpec,
 )
-from lerobot_obsbench.envs.base_task import TaskError, check_cameras, task_spec
+from lerobot_obsbench.envs.base_task import TaskError, check_cameras
+from lerobot_obsbench.envs.catalog import METAWORLD_CONTROL_MODE, is_metaworld, task_record
 from lerobot_obsbench.envs.maniskill import DEFAULT_CONTROL_MODE
 from lerobot_obsbench.envs.perturbations import parse_perturbation
 from lerobot_obsbench.presets import PRESETS
@@ -146,6 +147,9 @@ class Grid:
                 **variant,
             }
             rlbench = grid_task_name(task) is not None
+            control_mode = RLBENCH_CONTROL_MODE if rlbench else self.control_mode
+            if not rlbench and is_metaworld(task_record(task)):
+                control_mode = METAWORLD_CONTROL_MODE
             for encoder, augment in itertools.product(self.encoders[space], self.augmentations.get(space, [""])):
                 runs.append(
                     RunSpec(
@@ -162,7 +166,7 @@ class Grid:
                         budget=budget,
                         image_size=self.image_size,
                         cameras=tuple(self.cameras),
-                        control_mode=RLBENCH_CONTROL_MODE if rlbench else self.control_mode,
+                        control_mode=control_mode,
                         policy_overrides=tuple(sorted(overrides.items())),
                         language_goal=CLIP_GOAL if rlbench and self.clip_weights else "",
                         augment=augment,
@@ -171,7 +175,7 @@ class Grid:
         return runs
 
     def max_steps(self, run: RunSpec) -> int:
-        return int(self.episode_length or (RLBENCH_MAX_STEPS if run.rlbench_task else task_spec(run.task).max_steps))
+        return int(self.episode_length or (RLBENCH_MAX_STEPS if run.rlbench_task else task_record(run.task).max_steps))
 
     def test_checkpoints(self) -> tuple[str, ...]:
         return ("last", "best") if self.validation_episodes else ("last",)
@@ -209,7 +213,7 @@ class Grid:
 
 def task_overrides(task: str, obs_space: str) -> dict[str, object]:
     """`--policy.*` fields a task sets for a space: its point-cloud crop box (`Task.workspace`; RLBench's scene)."""
-    workspace = RLBENCH_WORKSPACE if grid_task_name(task) else task_spec(task).workspace
+    workspace = RLBENCH_WORKSPACE if grid_task_name(task) else task_record(task).workspace
     return {"workspace": list(workspace)} if workspace is not None and reads_points(obs_space) else {}
 
 
@@ -236,7 +240,7 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
         values["learning_rates"] = [float(lr) for lr in values["learning_rates"]]
     for task in [] if rlbench else tasks:
         try:
-            check_cameras(task_spec(task), values.get("cameras", _default("cameras")))
+            check_cameras(task_record(task), values.get("cameras", _default("cameras")))
         except TaskError as err:
             raise GridError(f"{name}: {err}") from None
     grid = Grid(

@@ -12,6 +12,8 @@ from dataclasses import MISSING, field
 
 from lerobot_obsbench.bench.specs import GridError
 from lerobot_obsbench.envs.base_task import TASKS, task_spec
+from lerobot_obsbench.envs.metaworld.tasks import DEFAULT_CAMERA as METAWORLD_CAMERA
+from lerobot_obsbench.envs.metaworld.tasks import is_metaworld_name, metaworld_task
 from lerobot_obsbench.numeric import check_number, check_numbers
 from lerobot_obsbench.presets import preset_encoder
 from lerobot_obsbench.rlbench.paper_tasks import CAMERAS as RLBENCH_CAMERAS
@@ -204,18 +206,40 @@ def check_values(values: dict, fields: tuple[dataclasses.Field, ...], keys: dict
 
 
 def check_tasks(values: dict, tasks: list, name: str) -> list[str]:
-    """The grid's tasks: all RLBench tasks (returned) or all ManiSkill tasks (then no RLBench-only field)."""
+    """The grid's tasks: all RLBench tasks (returned), or all ManiSkill or all Meta-World tasks (then no RLBench-only
+    field)."""
     rlbench = [t for t in tasks if isinstance(t, str) and grid_task_name(t) is not None]
     if rlbench:
         _check_rlbench(values, tasks, rlbench, name)
         return rlbench
-    choose(tasks, list(TASKS), "tasks")
-    for task in tasks:
-        task_spec(task)
+    metaworld = [t for t in tasks if isinstance(t, str) and is_metaworld_name(t)]
+    if metaworld:
+        _check_metaworld(values, tasks, metaworld, name)
+    else:
+        choose(tasks, list(TASKS), "tasks")
+        for task in tasks:
+            task_spec(task)
     given = [k for k in ("rlbench_data", "clip_weights") if values.get(k) is not None]
     if given:
         raise GridError(f"{name}: {', '.join(given)} only apply to RLBench tasks (rlbench/<task>); the grid has none")
     return rlbench
+
+
+def _check_metaworld(values: dict, tasks: list, metaworld: list[str], name: str) -> None:
+    """A Meta-World grid: every task one LeRobot lists, no task of another simulator, and `corner2` (LeRobot's
+    camera) unless the grid names its cameras."""
+    others = [t for t in tasks if t not in metaworld]
+    if others:
+        raise GridError(
+            f"{name}: Meta-World and ManiSkill tasks in one grid ({metaworld[0]} and {others[0]}); they differ in "
+            "robot, cameras, state and actions: put each simulator's tasks in a grid of its own"
+        )
+    for task in metaworld:
+        try:
+            metaworld_task(task)
+        except ValueError as err:
+            raise GridError(f"{name}: {err}") from None
+    values.setdefault("cameras", [METAWORLD_CAMERA])
 
 
 def _check_rlbench(values: dict, tasks: list, rlbench: list[str], name: str) -> None:

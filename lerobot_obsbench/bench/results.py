@@ -161,7 +161,7 @@ def upgrade_v1(record: dict) -> list[dict]:
     """A 0.1 record -> its train record and one eval record per evaluation (the last checkpoint, test seeds,
     each task's own episode budget, which is what 0.1 ran)."""
     from lerobot_obsbench.bench.specs import EvalSpec, RunSpec
-    from lerobot_obsbench.envs.base_task import task_spec
+    from lerobot_obsbench.envs.catalog import task_record
 
     old = dict(record["config"])
     for key in V1_EVAL_FIELDS:
@@ -188,7 +188,7 @@ def upgrade_v1(record: dict) -> list[dict]:
     }
     evals = []
     for perturbation, summary in record["evaluations"].items():
-        spec = EvalSpec(run.run_id, "last", "test", summary["episodes"], perturbation, task_spec(run.task).max_steps)
+        spec = EvalSpec(run.run_id, "last", "test", summary["episodes"], perturbation, task_record(run.task).max_steps)
         evals.append(
             {
                 "kind": "eval",

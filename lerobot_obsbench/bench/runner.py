@@ -32,7 +32,8 @@ from lerobot_obsbench.bench.jobs import DemoJob, EvalJob, Job, TrainJob, WorkQue
 from lerobot_obsbench.bench.results import RESULTS_FILE, append_result, by_kind, read_results
 from lerobot_obsbench.bench.specs import BUDGET_UNITS, EvalSpec, GridError, RunSpec
 from lerobot_obsbench.bench.units import demo_dir, demos_recorded, evaluation_progress, run_dir, training_progress
-from lerobot_obsbench.envs.base_task import TASKS, asset_help, missing_assets, task_spec
+from lerobot_obsbench.envs.base_task import TASKS, asset_help, missing_assets
+from lerobot_obsbench.envs.catalog import task_record
 from lerobot_obsbench.envs.vector import default_batch_size
 from lerobot_obsbench.locks import exclusive_output
 from lerobot_obsbench.rlbench.paper_tasks import grid_task_name
@@ -466,7 +467,7 @@ def check_tasks(grid: Grid, dry_run: bool = False, echo=print) -> None:
             raise GridError(f"{grid.name}: " + ". Also: ".join(problems))
         return
     for name in grid.tasks:
-        spec = task_spec(name)
+        spec = task_record(name)
         problems = []
         if spec.expert is None and not grid.checkpoints_from:
             experts = ", ".join(n for n, t in TASKS.items() if t.expert)

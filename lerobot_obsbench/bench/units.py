@@ -296,7 +296,7 @@ def run_diagnostics(
     episodes (which no run trains on). A failure is recorded in place of the held-out figures, not raised: the
     trained run is kept."""
     from lerobot_obsbench.bench.diagnostics import held_out_diagnostics, loss_curve
-    from lerobot_obsbench.envs.base_task import task_spec
+    from lerobot_obsbench.envs.catalog import task_record
 
     out: dict = {"loss_curve": loss_curve((root / "train.log").read_text(), log_every(steps))}
     if held_out:
@@ -305,7 +305,7 @@ def run_diagnostics(
         if episodes[0] < run.demos:
             raise RunError(f"run {run.run_id} trains on {run.demos} demos; the held-out {episodes} overlap them")
         try:
-            out.update(held_out_diagnostics(checkpoint, dataset, episodes, task_spec(run.task), device))
+            out.update(held_out_diagnostics(checkpoint, dataset, episodes, task_record(run.task), device))
         except Exception as err:  # a diagnostic must not lose a trained run
             out["error"] = f"{type(err).__name__}: {err}"
     return out

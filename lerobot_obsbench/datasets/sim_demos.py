@@ -40,13 +40,8 @@ from lerobot_obsbench.datasets.staging import (
     save_episode_file,
     settings_differences,
 )
-from lerobot_obsbench.envs.base_task import DEMO_SEED_START, check_cameras, task_spec
-from lerobot_obsbench.envs.maniskill import CONTROL_FPS, ROBOT_TYPE
-from lerobot_obsbench.envs.metaworld.tasks import CONTROL_FPS as METAWORLD_FPS
-from lerobot_obsbench.envs.metaworld.tasks import DEFAULT_CAMERA as DEFAULT_METAWORLD_CAMERA
-from lerobot_obsbench.envs.metaworld.tasks import ROBOT_TYPE as METAWORLD_ROBOT
-from lerobot_obsbench.envs.metaworld.tasks import MetaWorldTask, is_metaworld_name, metaworld_task
-from lerobot_obsbench.envs.metaworld.tasks import check_cameras as check_metaworld_cameras
+from lerobot_obsbench.envs.base_task import DEMO_SEED_START, check_cameras
+from lerobot_obsbench.envs.catalog import make_task_env, task_record
 from lerobot_obsbench.envs.vector import make_envs
 from lerobot_obsbench.errors import ObsBenchError, UsageError
 from lerobot_obsbench.locks import exclusive_output
@@ -91,47 +86,14 @@ def expert_episode(env, spec, seed: int) -> tuple[bool, dict[str, np.ndarray]]:
     return success, stacked
 
 
-def demo_task(task: str):
-    """The task record of a ManiSkill or a Meta-World task (by how its name is written); an unknown name is refused
-    with its simulator's task names."""
-    return metaworld_task(task) if is_metaworld_name(task) else task_spec(task)
-
-
-def _simulator_of(spec) -> dict:
-    """What a dataset of `spec`'s simulator records beside its frames: steps per second and the robot."""
-    if isinstance(spec, MetaWorldTask):
-        return {"fps": METAWORLD_FPS, "robot_type": METAWORLD_ROBOT}
-    return {"fps": CONTROL_FPS, "robot_type": ROBOT_TYPE}
-
-
-def default_cameras(spec) -> tuple[str, ...]:
-    """The cameras a task records unless told: ManiSkill's task camera, or the one LeRobot renders Meta-World with."""
-    return (DEFAULT_METAWORLD_CAMERA,) if isinstance(spec, MetaWorldTask) else ("base_camera",)
-
-
-def _check_cameras(spec, cameras) -> None:
-    if isinstance(spec, MetaWorldTask):
-        check_metaworld_cameras(spec, cameras)
-    else:
-        check_cameras(spec, cameras)
-
-
 class ExpertRecorder:
     """An env and the task's expert, recording one whole episode per call (in a worker process, or this one)."""
 
     def __init__(self, task: str, cameras, image_size: int):
-        self.spec = demo_task(task)
-        self.screen = None
-        if isinstance(self.spec, MetaWorldTask):
-            from lerobot_obsbench.envs.metaworld.env import MetaWorldEnv
-
-            self.env = MetaWorldEnv(task, cameras=cameras, image_size=image_size)
-            return
-        from lerobot_obsbench.envs.maniskill import ObsBenchEnv
-
-        self.env = ObsBenchEnv(task, cameras=cameras, image_size=image_size)
-        if cameras and self.spec.expert_success_rate < SCREEN_BELOW:
-            self.screen = ObsBenchEnv(task, cameras=(), image_size=image_size)
+        self.spec = task_record(task)
+        self.env = make_task_env(task, cameras=cameras, image_size=image_size)
+        screens = bool(cameras) and self.spec.expert_success_rate < SCREEN_BELOW
+        self.screen = make_task_env(task, cameras=(), image_size=image_size) if screens else None
 
     def episode(self, seed: int) -> tuple[bool, dict[str, np.ndarray]]:
         if self.screen is not None and not expert_episode(self.screen, self.spec, seed)[0]:
@@ -189,7 +151,7 @@ def record_demos(
     recording (finished: returned; interrupted: resumed), anything else refused before the simulator starts,
     unless `overwrite` (then it is deleted first). `workers` processes record episodes side by side (module
     docstring)."""
-    spec = demo_task(task)  # unknown task -> TaskError listing the valid ones
+    spec = task_record(task)  # unknown task -> TaskError naming the closest ones
     if spec.expert is None:
         spec.make_expert(None)  # raises the explanatory NotImplementedError
     if seed_start < DEMO_SEED_START:
@@ -202,8 +164,8 @@ def record_demos(
         raise UsageError(
             f"--image-size must be >= {MIN_IMAGE_SIZE} pixels (LeRobot's video encoder fails below); got {image_size}"
         )
-    cameras = default_cameras(spec) if cameras is None else tuple(cameras)
-    _check_cameras(spec, cameras)
+    cameras = (spec.default_camera,) if cameras is None else tuple(cameras)
+    check_cameras(spec, cameras)
     settings = {"task": spec.name, "image_size": image_size, "cameras": list(cameras), "seed_start": seed_start}
     with exclusive_output(out, "obsbench demos"):
         prepare_dataset_out(
@@ -269,7 +231,8 @@ def _record_locked(
         [staging / f"seed_{s}.npz" for s in seeds],
         spec.description,
         repo_id=repo_id or f"local/obsbench_{task}",
-        **_simulator_of(spec),
+        fps=spec.fps,
+        robot_type=spec.robot_type,
         feature_names={PRIVILEGED_STATE_KEY: privileged_state_names(spec.privileged_actors)},
     )
     tried = sum(s <= seeds[-1] for s in attempted)  # what one worker attempts (more workers try a few more)

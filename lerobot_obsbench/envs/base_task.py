@@ -123,6 +123,11 @@ class Task:
     # The cameras the task renders (ManiSkill's sensors; `observation.*.<cam>` keys), so a typo is refused before a
     # simulator starts.
     camera_names: ClassVar[tuple[str, ...]] = ("base_camera",)
+    # The camera demonstrations and grids render unless told otherwise.
+    default_camera: ClassVar[str] = "base_camera"
+    # ManiSkill's tabletop tasks step their controllers at 20 Hz: the rate demonstrations are recorded at.
+    fps: ClassVar[int] = 20
+    robot_type: ClassVar[str] = "panda"  # every task's robot, as LeRobot datasets record it (robot_type)
     # The task's own `base_camera` (OBSBench's, replacing ManiSkill's): eye and target points in the world frame
     # (metres) and the field of view (radians). None: ManiSkill's camera.
     camera: ClassVar[tuple[tuple[float, float, float], tuple[float, float, float], float] | None] = None

@@ -35,27 +35,48 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from lerobot_obsbench.envs.base_task import eval_seeds, task_spec
+from lerobot_obsbench.envs.base_task import eval_seeds
+from lerobot_obsbench.envs.catalog import METAWORLD_CONTROL_MODE, is_metaworld, make_task_env, task_record
 from lerobot_obsbench.envs.maniskill import (
     ACTION_DIMS,
-    CONTROL_FPS,
     DEFAULT_CONTROL_MODE,
     SIM_BACKENDS,
     STATE_DIM,
     make_obsbench_env,
 )
+from lerobot_obsbench.envs.metaworld.env import ACTION_SIZE as METAWORLD_ACTION
+from lerobot_obsbench.envs.metaworld.env import STATE_SIZE as METAWORLD_STATE
 from lerobot_obsbench.envs.vector import make_envs
 from lerobot_obsbench.errors import ConfigError, UsageError
 from lerobot_obsbench.outputs import record_outputs, write_json_atomic, write_text_atomic
 from lerobot_obsbench.policies.loading import load_policy
-from lerobot_obsbench.schema import check_compatibility
+from lerobot_obsbench.schema import DEPTH_PREFIX, IMAGE_PREFIX, check_compatibility, space_info
 from lerobot_obsbench.stats import per_seed, success_summary
 
 
 def check_compatible(config, cameras: list[str], image_size: int, control_mode: str, task: str) -> None:
     """Refuse a policy whose cameras, image size, state, action or oracle objects do not match the env."""
-    objects = task_spec(task).privileged_actors
-    check_compatibility(config, cameras, (image_size, image_size), STATE_DIM, ACTION_DIMS[control_mode], objects)
+    spec = task_record(task)
+    state, action = (
+        (METAWORLD_STATE, METAWORLD_ACTION) if is_metaworld(spec) else (STATE_DIM, ACTION_DIMS[control_mode])
+    )
+    check_compatibility(config, cameras, (image_size, image_size), state, action, spec.privileged_actors)
+
+
+def _metaworld_options(control_mode: str, perturbation: str | None, sim_backend: str) -> None:
+    """Refuse the ManiSkill-only settings for a Meta-World task, which would otherwise be ignored."""
+    if control_mode not in (DEFAULT_CONTROL_MODE, METAWORLD_CONTROL_MODE):
+        raise UsageError(
+            f"Meta-World tasks act by {METAWORLD_CONTROL_MODE} only; got --env.control_mode {control_mode}"
+        )
+    if perturbation not in (None, "none"):
+        raise UsageError(
+            f"zero-shot perturbations are ManiSkill's; Meta-World tasks have none yet (got {perturbation})"
+        )
+    if sim_backend not in ("auto", "physx_cpu"):
+        raise UsageError(
+            f"Meta-World tasks run on MuJoCo, one env per worker process; got --eval.sim_backend {sim_backend}"
+        )
 
 
 def policy_observation(observation: dict) -> dict:
@@ -94,8 +115,10 @@ def choose_sim_backend(sim_backend: str, device: str, batch_size: int, perturbat
 
 
 def make_eval_envs(env_kwargs: dict, size: int, sim_backend: str):
-    """`size` ObsBench envs (`make_obsbench_env(**env_kwargs)`) for lockstep on `sim_backend`: worker processes
-    on ManiSkill's CPU simulation, or one batched env object on its GPU simulation."""
+    """`size` envs for lockstep on `sim_backend`: worker processes on ManiSkill's CPU simulation or MuJoCo
+    (Meta-World), or one batched env object on ManiSkill's GPU simulation."""
+    if sim_backend == "mujoco":
+        return make_envs(make_task_env, env_kwargs, size)
     kwargs = {**env_kwargs, "sim_backend": sim_backend}
     return make_envs(make_obsbench_env, kwargs, size, batched=sim_backend == "physx_cuda")
 
@@ -128,12 +151,16 @@ def evaluate(
     `sim_backend` (`choose_sim_backend`): physx_cpu runs each env in a worker process of its own, physx_cuda all
     of them in ManiSkill's GPU simulation. `progress_file` receives {"done", "episodes", "successes"} after every
     finished episode (for a grid's live progress)."""
-    spec = task_spec(task)
+    spec = task_record(task)
     if batch_size < 1:
         raise ConfigError(f"--eval.batch_size must be >= 1; got {batch_size}")
     seeds = eval_seeds(episodes, split)
     slots = min(batch_size, len(seeds))
-    sim = choose_sim_backend(sim_backend, device, slots, perturbation)
+    if is_metaworld(spec):
+        _metaworld_options(control_mode, perturbation, sim_backend)
+        sim = "mujoco"
+    else:
+        sim = choose_sim_backend(sim_backend, device, slots, perturbation)
     policy, pre, post = load_policy(policy_path, device)
     # the plugin's policies name the cameras they read (none for the blind and oracle controls, which then render
     # nothing); a stock policy reads the task camera
@@ -142,16 +169,12 @@ def evaluate(
     size = image_size or (resolution[0] if resolution else 128)
     check_compatible(policy.config, cameras, size, control_mode, task)  # before any simulator starts
     steps = episode_length or spec.max_steps
-    env_kwargs = dict(
-        task=task,
-        cameras=cameras,
-        image_size=size,
-        control_mode=control_mode,
-        asset_dir=asset_dir,
-        episode_length=steps,
-        perturbation=perturbation,
-        device=device,
-    )
+    env_kwargs = dict(task=task, cameras=cameras, image_size=size, episode_length=steps)
+    if is_metaworld(spec):  # rendering only the sensors the policy reads
+        read = space_info(policy.config.obs_space).sensors if hasattr(policy.config, "obs_space") else (IMAGE_PREFIX,)
+        env_kwargs["sensors"] = tuple(prefix for prefix in (IMAGE_PREFIX, DEPTH_PREFIX) if prefix in read)
+    else:
+        env_kwargs.update(control_mode=control_mode, asset_dir=asset_dir, perturbation=perturbation, device=device)
     start = time.time()
     label = f"eval {task}" + (f" [{perturbation}]" if perturbation not in (None, "none") else "")
     bar = tqdm(total=len(seeds), desc=label, unit="ep", disable=not progress)
@@ -168,7 +191,8 @@ def evaluate(
                 if progress_file is not None:
                     write_json_atomic(progress_file, {"done": len(records), "episodes": len(seeds), "successes": wins})
             if video_dir is not None:
-                _write_videos(video_dir, task, wave, records, videos_made_by(policy_path, task, perturbation))
+                made_by = videos_made_by(policy_path, task, perturbation)
+                _write_videos(video_dir, task, wave, records, made_by, spec.fps)
     finally:
         bar.close()
         envs.close()
@@ -249,13 +273,13 @@ def videos_made_by(policy_path: str | Path, task: str, perturbation: str | None)
     return {"writer": "obsbench eval", "policy_path": checkpoint, "task": task, "perturbation": perturbation or "none"}
 
 
-def _write_videos(video_dir: Path, task: str, seeds: list[int], records: dict, made_by: dict) -> None:
+def _write_videos(video_dir: Path, task: str, seeds: list[int], records: dict, made_by: dict, fps: int) -> None:
     from lerobot.utils.io_utils import write_video
 
     video_dir.mkdir(parents=True, exist_ok=True)
     paths = [video_dir / video_name(task, seed) for seed in seeds]
     for seed, path in zip(seeds, paths, strict=True):
-        write_video(str(path), np.stack(records[seed].pop("frames")), fps=CONTROL_FPS)
+        write_video(str(path), np.stack(records[seed].pop("frames")), fps=fps)
     record_outputs(paths, made_by)  # after each wave, so a rerun of an interrupted evaluation may replace them
 
 

@@ -28,6 +28,7 @@ import gymnasium as gym
 import numpy as np
 
 from lerobot_obsbench.envs.base_task import (
+    Task,
     TaskError,
     asset_help,
     check_cameras,
@@ -55,9 +56,8 @@ from lerobot_obsbench.schema import (
     intrinsics_key,
 )
 
-# ManiSkill's tabletop tasks step their controllers at 20 Hz: the rate demonstrations are recorded at.
-CONTROL_FPS = 20
-ROBOT_TYPE = "panda"  # every task's robot, as LeRobot datasets record it (robot_type)
+CONTROL_FPS = Task.fps
+ROBOT_TYPE = Task.robot_type
 # Controller -> action size; the paper's is the first (Δpos, Δrot axis-angle, gripper).
 ACTION_DIMS = {"pd_ee_delta_pose": 7, "pd_joint_pos": 8}
 CONTROL_MODES = tuple(ACTION_DIMS)

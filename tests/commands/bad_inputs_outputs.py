@@ -28,7 +28,7 @@ def _videos_of(root: Path, checkpoint: str, perturbation: str | None = None) -> 
 
     frames = [np.full((32, 32, 3), shade, np.uint8) for shade in (0, 128, 255)]
     records = {seed: {"frames": list(frames)} for seed in (0, 1)}
-    _write_videos(root / "v", TASK, [0, 1], records, videos_made_by(checkpoint, TASK, perturbation))
+    _write_videos(root / "v", TASK, [0, 1], records, videos_made_by(checkpoint, TASK, perturbation), fps=20)
 
 
 def eval_videos_over_files_it_did_not_write(root: Path) -> list[str]:

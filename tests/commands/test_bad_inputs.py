@@ -488,7 +488,7 @@ def demos_of_a_metaworld_camera_typo(root: Path) -> list[str]:
 
 ROWS = [
     (demos_of_a_metaworld_typo, ["unknown Meta-World task 'drawer-opn-v3'; did you mean drawer-open-v3"]),
-    (demos_of_a_metaworld_camera_typo, ["drawer-open-v3 has no camera 'wrist'", "corner2"]),
+    (demos_of_a_metaworld_camera_typo, ["cameras ['wrist']: drawer-open-v3 has no such camera", "'corner2'"]),
     (demos_over_another_dataset, ["--out", "is not empty (data, meta)", "--overwrite"]),
     (demos_with_another_image_size, ["other settings (image_size 64 there, 128 asked)", "--overwrite"]),
     (demos_resuming_another_task, ["interrupted run", "task 'PickCube-v1' there, 'PushCube-v1' asked"]),

@@ -8,14 +8,9 @@ from dataclasses import dataclass, field
 from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
 
+from lerobot_obsbench.envs.base_task import check_cameras
 from lerobot_obsbench.envs.metaworld.env import ACTION_SIZE, STATE_SIZE
-from lerobot_obsbench.envs.metaworld.tasks import (
-    CONTROL_FPS,
-    DEFAULT_CAMERA,
-    MAX_STEPS,
-    check_cameras,
-    metaworld_task,
-)
+from lerobot_obsbench.envs.metaworld.tasks import CONTROL_FPS, DEFAULT_CAMERA, MAX_STEPS, metaworld_task
 from lerobot_obsbench.numeric import check_number
 from lerobot_obsbench.schema import ACTION_KEY, MIN_IMAGE_SIZE, STATE_KEY, image_key
 

@@ -27,12 +27,12 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
+from lerobot_obsbench.envs.base_task import check_cameras
 from lerobot_obsbench.envs.metaworld.rendering import check_gl, open_renderer
 from lerobot_obsbench.envs.metaworld.tasks import (
     CORNER2_POSITION,
     MAX_STEPS,
     TURNED_CAMERAS,
-    check_cameras,
     metaworld_task,
 )
 from lerobot_obsbench.errors import ConfigError, MissingDependencyError

@@ -24,14 +24,20 @@ class HeadlessGLError(ObsBenchError, RuntimeError):
     """MuJoCo could not open an OpenGL context without a display."""
 
 
-def choose_gl() -> str:
-    """The OpenGL back-end MuJoCo will use: `MUJOCO_GL` as set (egl, osmesa, or glfw with a display), else egl;
-    PyOpenGL is pointed at the same one. Must run before MuJoCo is imported, which reads it once."""
+def prefer_headless_gl() -> None:
+    """Point MuJoCo (and PyOpenGL) at EGL unless `MUJOCO_GL` is set: MuJoCo reads it once, when first imported."""
     chosen = os.environ.setdefault("MUJOCO_GL", "egl")
-    if chosen not in (*HEADLESS_GL, "glfw"):
-        raise HeadlessGLError(f"MUJOCO_GL={chosen!r} is not one of MuJoCo's back-ends (egl, osmesa, glfw); {GL_HELP}")
     if chosen in HEADLESS_GL:
         os.environ.setdefault("PYOPENGL_PLATFORM", chosen)
+
+
+def choose_gl() -> str:
+    """The OpenGL back-end MuJoCo will use: `MUJOCO_GL` as set (egl, osmesa, or glfw with a display), else egl.
+    Must run before MuJoCo is imported."""
+    prefer_headless_gl()
+    chosen = os.environ["MUJOCO_GL"]
+    if chosen not in (*HEADLESS_GL, "glfw"):
+        raise HeadlessGLError(f"MUJOCO_GL={chosen!r} is not one of MuJoCo's back-ends (egl, osmesa, glfw); {GL_HELP}")
     return chosen
 
 
@@ -47,6 +53,11 @@ def check_gl() -> None:
         try:
             import mujoco
 
+            if mujoco.GLContext.__module__ != f"mujoco.{backend}":
+                raise RuntimeError(
+                    f"MuJoCo was imported with {mujoco.GLContext.__module__} before its back-end was chosen (set "
+                    f"MUJOCO_GL={backend} before Python starts)"
+                )
             context = mujoco.GLContext(1, 1)
             context.make_current()
             context.free()

@@ -35,10 +35,16 @@ METAWORLD_PREFIX = "metaworld-"  # LeRobot's task prefix
 DIFFICULTIES = ("easy", "medium", "hard", "very_hard")  # DP3's groups, as LeRobot names them
 
 
+# The crop box of every Meta-World task (metres, world frame: xmin xmax ymin ymax zmin zmax): the table top and the
+# space above it that the arm reaches, the table's surface kept.
+TABLE_WORKSPACE = (-0.6, 0.6, 0.2, 1.0, -0.01, 0.6)
+
+
 @dataclass(frozen=True)
 class MetaWorldTask:
     """One Meta-World task: its name (`drawer-open-v3`), LeRobot's description, DP3's difficulty group and the
-    class name of its scripted expert in `metaworld.policies`."""
+    class name of its scripted expert in `metaworld.policies`; the other fields answer what the benchmark asks of
+    any task (as a ManiSkill `Task` does)."""
 
     name: str
     description: str
@@ -46,6 +52,18 @@ class MetaWorldTask:
     expert: str
     privileged_actors: tuple[str, ...] = PRIVILEGED_OBJECTS
     max_steps: int = MAX_STEPS
+    camera_names: tuple[str, ...] = CAMERAS
+    default_camera: str = DEFAULT_CAMERA
+    workspace: tuple[float, ...] = TABLE_WORKSPACE
+    fps: int = CONTROL_FPS
+    robot_type: str = ROBOT_TYPE
+    goal: tuple = ()  # no goal observation, as in LeRobot's env and DP3
+    sub_success: tuple[str, ...] = ()
+    objects: tuple = ()  # no object sizes for the diagnostics' pixel and point counts yet
+    asset_group: None = None  # Meta-World ships its models
+    camera: None = None  # the scene's cameras as Meta-World (and LeRobot) place them
+    # not measured per task: the recorder logs every failed attempt (the cost model then prices none)
+    expert_success_rate: float = 1.0
 
     def make_expert(self, env) -> MetaWorldExpert:
         """The scripted expert driving `env` (a `MetaWorldEnv` of this task)."""
@@ -112,14 +130,3 @@ def metaworld_task(name: str) -> MetaWorldTask:
             "every one: lerobot_obsbench.envs.metaworld.tasks.metaworld_tasks())"
         )
     return task
-
-
-def check_cameras(task: MetaWorldTask, cameras: list[str] | tuple[str, ...]) -> None:
-    """Refuse a camera the Sawyer scene does not have, naming the ones it has (none: the env renders nothing, for
-    the blind and oracle controls)."""
-    unknown = [camera for camera in cameras if camera not in CAMERAS]
-    if unknown:
-        raise TaskError(
-            f"Meta-World task {task.name} has no camera {', '.join(map(repr, unknown))}; its cameras: "
-            f"{', '.join(CAMERAS)} (LeRobot's is {DEFAULT_CAMERA})"
-        )
