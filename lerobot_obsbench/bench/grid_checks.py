@@ -225,15 +225,20 @@ def check_tasks(values: dict, tasks: list, name: str) -> list[str]:
     return rlbench
 
 
+def _refuse_other_simulators(tasks: list, own: list[str], simulator: str, name: str) -> None:
+    """A grid of `simulator`'s tasks (`own`) holds no other simulator's."""
+    others = [t for t in tasks if t not in own]
+    if others:
+        raise GridError(
+            f"{name}: {simulator} and ManiSkill tasks in one grid ({own[0]} and {others[0]}); simulators differ in "
+            "robot, cameras, image size and episode budget: put each simulator's tasks in a grid of its own"
+        )
+
+
 def _check_metaworld(values: dict, tasks: list, metaworld: list[str], name: str) -> None:
     """A Meta-World grid: every task one LeRobot lists, no task of another simulator, and `corner2` (LeRobot's
     camera) unless the grid names its cameras."""
-    others = [t for t in tasks if t not in metaworld]
-    if others:
-        raise GridError(
-            f"{name}: Meta-World and ManiSkill tasks in one grid ({metaworld[0]} and {others[0]}); they differ in "
-            "robot, cameras, state and actions: put each simulator's tasks in a grid of its own"
-        )
+    _refuse_other_simulators(tasks, metaworld, "Meta-World", name)
     for task in metaworld:
         try:
             metaworld_task(task)
@@ -245,12 +250,7 @@ def _check_metaworld(values: dict, tasks: list, metaworld: list[str], name: str)
 def _check_rlbench(values: dict, tasks: list, rlbench: list[str], name: str) -> None:
     """An RLBench grid: every task an RLBench task the importer knows, its data folder named, its cameras
     RLBench's, and no ManiSkill-only setting given (each would otherwise be ignored)."""
-    others = [t for t in tasks if t not in rlbench]
-    if others:
-        raise GridError(
-            f"{name}: RLBench and ManiSkill tasks in one grid ({rlbench[0]} and {others[0]}); they differ in cameras, "
-            "image size and episode budget: put each simulator's tasks in a grid of its own"
-        )
+    _refuse_other_simulators(tasks, rlbench, "RLBench", name)
     for task in rlbench:
         try:
             rlbench_task(grid_task_name(task))
