@@ -181,11 +181,11 @@ def _checked_number(value, spec: dataclasses.Field, label: str, keys: dict[str, 
 def check_values(values: dict, fields: tuple[dataclasses.Field, ...], keys: dict[str, list], name: str) -> None:
     """Type and range of every field given, by the check written beside it (`grid_field`), before anything is
     built or run; each number in `values` is replaced by its checked value. `keys`: the grid's policies and tasks,
-    which per-policy and per-task mappings name."""
+    which per-policy and per-task mappings name. `null` is a value only where it is the field's default."""
     for spec in fields:
-        value = values.get(spec.name)
-        if value is None:
+        if spec.name not in values or (values[spec.name] is None and spec.default is None):
             continue
+        value = values[spec.name]
         label = f"{name}: {spec.name}"
         if spec.metadata["number"] is not None:
             values[spec.name] = value = _checked_number(value, spec, label, keys)

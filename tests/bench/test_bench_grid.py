@@ -275,6 +275,9 @@ def test_bad_grids_fail_with_the_valid_choices(change, words):
         ("batch_size", "true", "batch_size must be a whole number >= 1; got True"),
         ("eval_batch_size", "0", "eval_batch_size must be a whole number >= 1; got 0"),
         ("cameras", "base_camera", "cameras is a list of names"),
+        ("cameras", "null", "cameras is a list of names, e.g. [base_camera]; got None"),
+        ("policy_overrides", "null", "policy_overrides maps --policy.* fields to values"),
+        ("batch_size", "null", "batch_size must be a whole number >= 1; got None"),
     ],
 )
 def test_bad_grid_values_are_refused_by_the_dry_run(tmp_path, capsys, field, text, message):
