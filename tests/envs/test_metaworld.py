@@ -149,6 +149,16 @@ def test_the_scripted_expert_solves_its_task_with_nothing_rendered():
         env.close()
 
 
+def test_the_episode_budget_is_the_envs_even_beyond_metaworlds_own_500_steps():
+    env = MetaWorldEnv(TASK, cameras=[], episode_length=503)
+    try:
+        env.reset(seed=0)
+        ends = [env.step(np.zeros(4, np.float32))[2:4] for _ in range(503)]
+    finally:
+        env.close()
+    assert ends[-2] == (False, False) and ends[-1] == (False, True)
+
+
 @pytest.mark.slow
 def test_demonstrations_record_validate_view_train_and_evaluate_with_stock_lerobot(tmp_path):
     """`obsbench demos` on a Meta-World task: Meta-World's expert's successful episodes in the schema (80 fps, the

@@ -121,6 +121,7 @@ class MetaWorldEnv(gym.Env):
         benchmark = metaworld.MT1(self.spec_.name, seed=42)  # one task, its first train variant, as LeRobot's env
         self._env = benchmark.train_classes[self.spec_.name]()
         self._env.set_task(benchmark.train_tasks[0])
+        self._env.max_path_length = self.max_steps  # Meta-World refuses a step past its own budget (500)
         self._env.model.cam_pos[self._env.model.camera("corner2").id] = CORNER2_POSITION
         self._env.reset()
         self._env._freeze_rand_vec = False  # a new placement at each reset, drawn from the reset's seed
