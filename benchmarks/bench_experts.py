@@ -1,12 +1,15 @@
 """Each task's scripted expert on demonstration seeds: how often it succeeds and in how many steps, against the
-task's episode budget (`Task.max_steps`, which should hold twice the mean and the longest episode).
+task's episode budget (`max_steps`, which should hold twice the mean and the longest episode).
 
 Each episode gets three times the budget, so a slow success is counted and its length measured, not cut off.
 Without cameras (they do not change the physics).
 
-    .venv/bin/python -m benchmarks.bench_experts [--tasks PickCube-v1 ...] [--episodes 20] [--out FILE]
+    .venv/bin/python -m benchmarks.bench_experts [--simulator maniskill] [--tasks PickCube-v1 ...] [--episodes 20]
+        [--out FILE]
 
-Writes benchmarks/results/experts.json.
+Writes benchmarks/results/experts.json (`--simulator metaworld`: every Meta-World task LeRobot lists, into
+experts_metaworld.json). The cost model prices recordings and frame_epochs budgets by the mean lengths
+(`python -m benchmarks.refresh_rates`).
 """
 
 from __future__ import annotations
@@ -18,8 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import write
-from lerobot_obsbench.envs.base_task import task_spec
-from lerobot_obsbench.envs.maniskill import ObsBenchEnv
+from lerobot_obsbench.envs.catalog import make_task_env, task_record
+from lerobot_obsbench.envs.metaworld.tasks import metaworld_tasks
 
 TASKS = [
     "PushCubeWide-v1",
@@ -33,8 +36,8 @@ FIRST_SEED = 100_000  # the first demonstration seed (docs/simulation.md#seeds-r
 
 
 def measure(task: str, episodes: int) -> dict:
-    spec = task_spec(task)
-    env = ObsBenchEnv(task, cameras=(), image_size=32, episode_length=3 * spec.max_steps)
+    spec = task_record(task)
+    env = make_task_env(task, cameras=(), image_size=32, episode_length=3 * spec.max_steps)
     lengths, start = [], time.perf_counter()
     try:
         for seed in range(FIRST_SEED, FIRST_SEED + episodes):
@@ -62,15 +65,17 @@ def measure(task: str, episodes: int) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--tasks", nargs="+", default=TASKS)
+    parser.add_argument("--simulator", choices=("maniskill", "metaworld"), default="maniskill")
+    parser.add_argument("--tasks", nargs="+", help="default: the simulator's tasks")
     parser.add_argument("--episodes", type=int, choices=range(1, 10_001), metavar="N", default=20)
-    parser.add_argument("--out", type=Path, default=None, help="default benchmarks/results/experts.json")
+    parser.add_argument("--out", type=Path, default=None, help="default benchmarks/results/experts[_metaworld].json")
     args = parser.parse_args()
+    metaworld = args.simulator == "metaworld"
     rows = []
-    for task in args.tasks:
+    for task in args.tasks or (list(metaworld_tasks()) if metaworld else TASKS):
         rows.append(measure(task, args.episodes))
         print(rows[-1], flush=True)
-    write("experts", {"first_seed": FIRST_SEED, "rows": rows}, args.out)
+    write("experts_metaworld" if metaworld else "experts", {"first_seed": FIRST_SEED, "rows": rows}, args.out)
 
 
 if __name__ == "__main__":

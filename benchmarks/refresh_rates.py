@@ -6,6 +6,10 @@ come from benchmark results under `benchmarks/results/`; this tool derives them 
 
 - cpu evaluation env steps/s per lockstep batch size: `bench_eval` (`eval_cpu.json`), every row summed;
 - cpu per-task evaluation factors: `bench_grid_cost` on the cpu-suite's clean run (`grid_cost_cpu-suite.json`);
+- the scripted experts' mean episode length per task: `bench_experts` (`experts.json`, ManiSkill's tasks, and
+  `experts_metaworld.json`, Meta-World's);
+- cpu Meta-World evaluation env steps/s by what the env renders for the policy: `bench_metaworld_eval`
+  (`metaworld_eval_cpu.json`), the slowest space of each kind;
 - cuda evaluation env steps/s: the device check's rerun (`device_check_cuda_rerun.json`);
 - cuda training samples/s: the device check's quick-grid steps (cpu and tiny presets; the tiny one is bounded by
   them) and its ACT rows at the paper's sizes (image: their mean; point: PointNet there and SpUNet-34 from
@@ -82,9 +86,26 @@ def cuda_train_rates(results: Path = RESULTS) -> dict[str, dict[str, float]]:
     return {"tiny": small, "cpu": small, "paper": {"image": image, "point": round(mean(points), -1), "none": image}}
 
 
+def metaworld_eval_rates(results: Path = RESULTS) -> dict[str, float]:
+    """What the env renders for the policy -> Meta-World env steps/s, the slowest space rendering it."""
+    rates: dict[str, float] = {}
+    for row in _load(results, "metaworld_eval_cpu.json")["rows"]:
+        rates[row["rendered"]] = min(rates.get(row["rendered"], row["env_steps_per_s"]), row["env_steps_per_s"])
+    return rates
+
+
+def expert_mean_steps(results: Path = RESULTS) -> dict[str, float]:
+    """task -> its scripted expert's mean episode length (a task whose expert never succeeded is left out)."""
+    rows = [row for name in ("experts.json", "experts_metaworld.json") for row in _load(results, name)["rows"]]
+    return {row["task"]: row["mean_steps"] for row in rows if row["mean_steps"] is not None}
+
+
 # benchmark result -> the rates derived from it
 SOURCES = {
     "eval_cpu.json": ["eval_steps_per_second.cpu", "eval_rate_image_size"],
+    "metaworld_eval_cpu.json": ["metaworld_eval_steps_per_second.cpu"],
+    "experts.json": ["expert_mean_steps"],
+    "experts_metaworld.json": ["expert_mean_steps"],
     "grid_cost_cpu-suite.json": ["eval_task_factor.cpu"],
     "device_check_cuda_rerun.json": ["eval_steps_per_second.cuda"],
     "device_check_cuda.json": ["train_samples_per_second.cuda"],
@@ -122,6 +143,8 @@ def measured_rates(results: Path = RESULTS, known: dict | None = None) -> dict:
             "cuda": {str(r["batch_size"]): r["env_steps_per_s"] for r in cuda_evaluations(results)},
         },
         "eval_rate_image_size": _load(results, "eval_cpu.json")["image_size"],
+        "metaworld_eval_steps_per_second": {"cpu": metaworld_eval_rates(results)},
+        "expert_mean_steps": expert_mean_steps(results),
         "eval_task_factor": {"cpu": {task: row["factor"] for task, row in factors.items()}},
         "train_samples_per_second": {"cuda": cuda_train_rates(results)},
     }

@@ -12,9 +12,10 @@ from lerobot_obsbench.bench.grid import Grid
 from lerobot_obsbench.bench.specs import EvalSpec, RunSpec
 from lerobot_obsbench.bench.units import demo_dir, demo_frames, demos_recorded
 from lerobot_obsbench.envs.catalog import task_record
-from lerobot_obsbench.schema import is_control, reads_points
+from lerobot_obsbench.envs.metaworld.tasks import is_metaworld_name
+from lerobot_obsbench.schema import DEPTH_PREFIX, IMAGE_PREFIX, is_control, reads_points, space_info
 
-DEMO_FRAMES_PER_EPISODE = 30  # for estimates before the demonstrations exist
+DEMO_FRAMES_PER_EPISODE = 30  # for estimates before the demonstrations exist, for a task whose expert is not measured
 
 # The measured rates, each with the machine and benchmark behind it in docs/performance.md#the-cost-model; a
 # benchmark's new measurement reaches them through `python -m benchmarks.refresh_rates`.
@@ -37,6 +38,13 @@ EVAL_RATE_IMAGE_SIZE = RATES["eval_rate_image_size"]
 # (benchmarks/bench_grid_cost.py): a task's physics (a peg pushed into a hole) and policies that fail, running out
 # each episode's budget, make it larger. A task not listed, and every task on a device not listed, counts as 1.
 EVAL_TASK_FACTOR = RATES["eval_task_factor"]
+# Meta-World evaluation env steps per second with the policy, by what the env renders for it (`rendered_for`),
+# env start-up included. Not scaled with the image size: MuJoCo's colour pass costs its lighting passes, not its
+# pixels (docs/metaworld.md, "Cost"). A GPU plan is priced at them too (not measured there: an upper bound).
+METAWORLD_EVAL_STEPS_PER_SECOND = RATES["metaworld_eval_steps_per_second"]["cpu"]
+# The scripted experts' mean episode length on demonstration seeds, by task (benchmarks/bench_experts.py): the steps a
+# recording takes and, before the demonstrations exist, the frames a frame_epochs budget passes over.
+EXPERT_MEAN_STEPS = RATES["expert_mean_steps"]
 # The cores of the machine the cpu rates were measured on: more local workers than this share no more of its time.
 CPU_RATE_CORES = RATES["cpu_rate_cores"]
 # RLBench env steps per second, on either device: a guess.
@@ -44,7 +52,8 @@ RLBENCH_STEPS_PER_SECOND = RATES["rlbench_steps_per_second"]
 # One line of the dry run: the machines behind the rates.
 RATES_MEASURED_ON = (
     f"rates: cpu measured on {RATES['measured_on']['cpu']}; cuda on {RATES['measured_on']['cuda']}; per-task "
-    f"evaluation factors on {', '.join(EVAL_TASK_FACTOR)} only; docs/performance.md"
+    f"evaluation factors on {', '.join(EVAL_TASK_FACTOR)} only; Meta-World's evaluation on cpu only, which prices "
+    "it on either; docs/performance.md"
 )
 # The device kinds a plan is priced on, each as one worker: the whole 2-core CPU machine, or one GPU.
 DEVICE_KINDS = ("cpu", "cuda")
@@ -56,6 +65,14 @@ def device_kind(device: str) -> str:
 
 def space_kind(obs_space: str) -> str:
     return "point" if reads_points(obs_space) else "none" if is_control(obs_space) else "image"
+
+
+def rendered_for(obs_space: str) -> str:
+    """What a Meta-World env renders for a policy on `obs_space` (it renders only what the policy reads): "none",
+    "depth", "colour" or "colour+depth"."""
+    read = space_info(obs_space).sensors
+    kinds = [name for prefix, name in ((IMAGE_PREFIX, "colour"), (DEPTH_PREFIX, "depth")) if prefix in read]
+    return "+".join(kinds) or "none"
 
 
 def train_seconds(run: RunSpec, steps: int, device: str) -> float:
@@ -73,12 +90,16 @@ def episode_seconds(
     image_size: int = 128,
     used: float = 0.6,
     task: str | None = None,
+    rendered: str | None = None,
 ) -> float:
     """Running `episodes` simulated episodes of up to `max_steps` steps, `batch_size` in lockstep, each using
     `used` of its budget (a successful episode ends early; a failed one runs it out); `task`: evaluations of that
-    task, priced with its measured factor (None: the rates alone)."""
+    task, priced with its measured factor (None: the rates alone); `rendered`: a Meta-World env's, rendering that
+    (`rendered_for`; None: ManiSkill's)."""
     if rlbench:
         rate = RLBENCH_STEPS_PER_SECOND[device_kind(device)]
+    elif rendered is not None:
+        rate = METAWORLD_EVAL_STEPS_PER_SECOND[rendered]
     else:
         measured = EVAL_STEPS_PER_SECOND[device_kind(device)]
         rate = measured[max(n for n in measured if n <= batch_size)]
@@ -91,17 +112,25 @@ def episode_seconds(
 def eval_seconds(spec: EvalSpec, run: RunSpec, device: str, batch_size: int = 1) -> float:
     """`spec`, an evaluation of `run`, with `batch_size` episodes in lockstep."""
     rlbench = run.rlbench_task is not None
-    return episode_seconds(spec.episodes, spec.max_steps, device, rlbench, batch_size, run.image_size, task=run.task)
+    rendered = rendered_for(run.obs_space) if is_metaworld_name(run.task) else None
+    return episode_seconds(
+        spec.episodes, spec.max_steps, device, rlbench, batch_size, run.image_size, task=run.task, rendered=rendered
+    )
 
 
 def demo_seconds(grid: Grid, run: RunSpec, episodes: int, device: str) -> float:
     """Recording `episodes` scripted demonstrations of `run`'s task, one env: an expert's step costs what a
     policy's does in evaluation (the simulator and renderer dominate), and each success comes with the failed
     attempts its expert's success rate implies, each running out the episode's budget."""
-    failed = episodes * (1 / task_record(run.task).expert_success_rate - 1)
+    record = task_record(run.task)
+    failed = episodes * (1 / record.expert_success_rate - 1)
     steps = grid.max_steps(run)
-    return episode_seconds(episodes, steps, device, image_size=run.image_size) + episode_seconds(
-        failed, steps, device, image_size=run.image_size, used=1.0
+    used = min(1.0, EXPERT_MEAN_STEPS[run.task] / steps) if run.task in EXPERT_MEAN_STEPS else 0.6
+    # a Meta-World recording renders colour and depth, priced as a policy that reads both (its expert costs less)
+    rendered = "colour+depth" if is_metaworld_name(run.task) else None
+    size = run.image_size
+    return episode_seconds(episodes, steps, device, image_size=size, used=used, rendered=rendered) + episode_seconds(
+        failed, steps, device, image_size=size, used=1.0, rendered=rendered
     )
 
 
@@ -112,7 +141,7 @@ def planned_steps(run: RunSpec, out: Path) -> tuple[int, bool]:
     path = demo_dir(out, run, run.demos)
     if demos_recorded(path):
         return run.steps(demo_frames(path, run.demos)), True
-    return run.steps(run.demos * DEMO_FRAMES_PER_EPISODE), False
+    return run.steps(round(run.demos * EXPERT_MEAN_STEPS.get(run.task, DEMO_FRAMES_PER_EPISODE))), False
 
 
 @dataclass

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import re
 import shutil
 
@@ -804,3 +805,80 @@ def test_a_metaworld_grid_records_with_corner2_acts_by_mocap_and_crops_the_table
         parse_grid({**BASE, "tasks": ["drawer-opn-v3"]})
     with pytest.raises(GridError, match=r"cameras \['base_camera'\]: drawer-open-v3 has no such camera"):
         parse_grid({**BASE, "tasks": ["drawer-open-v3"], "cameras": ["base_camera"]})
+
+
+def test_metaworld_evaluations_and_recordings_are_priced_by_what_mujoco_renders(tmp_path):
+    """A Meta-World evaluation is priced at the measured rate of what its env renders for the policy (nothing for the
+    controls, depth, colour, or both), a recording at colour and depth over its expert's measured episode length,
+    which also estimates a frame_epochs budget's frames; a ManiSkill run's price is unchanged."""
+    from lerobot_obsbench.bench.cost import (
+        EXPERT_MEAN_STEPS,
+        METAWORLD_EVAL_STEPS_PER_SECOND,
+        demo_seconds,
+        episode_seconds,
+        eval_seconds,
+        planned_steps,
+        rendered_for,
+    )
+
+    assert {space: rendered_for(space) for space in ("none", "state", "depth", "rgb", "rgbd", "pointcloud")} == {
+        "none": "none",
+        "state": "none",
+        "depth": "depth",
+        "rgb": "colour",
+        "rgbd": "colour+depth",
+        "pointcloud": "colour+depth",
+    }
+    assert set(METAWORLD_EVAL_STEPS_PER_SECOND) == {"none", "depth", "colour", "colour+depth"}
+    grid = parse_grid({"tasks": ["drawer-open-v3"], "obs_spaces": ["none", "depth", "rgb", "pointcloud"], "steps": 10})
+    for run in grid.expand():
+        spec = grid.evaluations(run)[0]
+        rate = METAWORLD_EVAL_STEPS_PER_SECOND[rendered_for(run.obs_space)]
+        expected = spec.episodes * spec.max_steps * 0.6 / rate + 10
+        assert eval_seconds(spec, run, "cpu") == pytest.approx(expected), run.obs_space
+        assert eval_seconds(spec, run, "cuda") == pytest.approx(expected)  # not measured on a GPU: the cpu rate
+    run = grid.expand()[0]
+    # a recording: the expert's measured mean length, each step rendering colour and depth
+    episode = EXPERT_MEAN_STEPS["drawer-open-v3"] / METAWORLD_EVAL_STEPS_PER_SECOND["colour+depth"]
+    assert demo_seconds(grid, run, 10, "cpu") == pytest.approx(10 * episode + 10 + 10)  # no failed attempts
+    epochs = parse_grid({"tasks": ["drawer-open-v3"], "obs_spaces": ["none"], "frame_epochs": 3, "batch_size": 10})
+    run = epochs.expand()[0]
+    frames = round(run.demos * EXPERT_MEAN_STEPS["drawer-open-v3"])  # before the demonstrations exist: an estimate
+    assert planned_steps(run, tmp_path) == (math.ceil(3 * frames / 10), False)
+    maniskill = parse_grid(BASE)
+    run = maniskill.expand()[0]
+    spec = maniskill.evaluations(run)[0]
+    assert eval_seconds(spec, run, "cpu") == episode_seconds(
+        spec.episodes, spec.max_steps, "cpu", image_size=run.image_size, task=run.task
+    )
+
+
+def test_dp3_metaworld_is_dp3s_protocol_on_its_fifty_tasks_and_is_priced(capsys):
+    """The `dp3-metaworld` preset grid: DP3's 50 Meta-World tasks by difficulty group, 10 demonstrations, Diffusion
+    Policy with DP3's settings (3 of the predicted actions executed, DDIM with 10 steps predicting the sample, DP3's
+    encoder on 512 xyz points) against images, depth and both controls, 3,000 epochs at batch 128, three seeds, and
+    a dry run that prices it."""
+    from lerobot_obsbench.envs.metaworld.tasks import DIFFICULTIES, tasks_of
+
+    grid = load_grid("dp3-metaworld")
+    runs = grid.expand()
+    assert grid.tasks == [task for group in DIFFICULTIES for task in tasks_of(group)] and len(grid.tasks) == 50
+    assert {(r.obs_space, r.encoder) for r in runs} >= {("pointcloud", "dp3"), ("rgb", "resnet18")}
+    assert {r.obs_space for r in runs} == {"none", "state", "rgb", "depth", "pointcloud"}
+    assert {(r.policy, r.preset, r.demos, r.batch_size, r.budget_unit, r.budget) for r in runs} == {
+        ("obs_diffusion", "dp3", 10, 128, "frame_epochs", 3000)
+    }
+    assert sorted({r.seed for r in runs}) == [0, 1, 2]
+    fields = preset_overrides("dp3", "obs_diffusion", "pointcloud", "dp3")
+    assert {k: fields[k] for k in ("n_action_steps", "noise_scheduler_type", "prediction_type")} == {
+        "n_action_steps": 3,
+        "noise_scheduler_type": "DDIM",
+        "prediction_type": "sample",
+    }
+    assert (fields["num_inference_steps"], fields["num_tokens"], fields["point_features"]) == (10, 512, "xyz")
+    assert {s.episodes for r in runs[:5] for s in grid.evaluations(r)} == {20}
+    assert {grid.max_steps(r) for r in runs} == {200}
+    assert main(["run", "dp3-metaworld", "--dry-run", "--out", "/nonexistent/out"]) == 0
+    text = capsys.readouterr().out
+    assert "750 runs, 0 already trained, 750 to train" in text
+    assert _hours("on a 2-core CPU, HOURS h on one H200 GPU", text) > 0
