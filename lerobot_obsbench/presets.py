@@ -8,6 +8,11 @@
 - `cpu`: small models that train in minutes on a 2-core CPU (the main job, `make main`): ResNet-18 instead of ResNet-50
   for images, 128 point tokens, DP3 on xyz scaled to the crop box (DP3's own setting). Not the paper's setting:
   results from it are never a reproduction.
+- `dp3`: 3D Diffusion Policy's protocol as its code runs it (`dp3.yaml` and its Meta-World task files; DP3, Ze et
+  al., RSS 2024): Diffusion Policy executing 3 of the steps it predicts from 2 observations, DDIM with 10 inference
+  steps predicting the sample, DP3's point encoder on 512 xyz points scaled to the crop box; images through
+  ResNet-18 (Diffusion Policy's own image baseline). For Diffusion Policy; docs/metaworld.md lists what differs.
+  Needs a GPU at DP3's budget (`dp3-metaworld` grid).
 - `tiny`: the smallest sizes that still exercise every code path (tests).
 - `real-one-arm` / `real-two-arms`: the paper's real-robot tasks (Reach / Pick Cube, Fold Cloth; see
   `lerobot_obsbench.robots.real_tasks`): ACT at lr 5e-5 with chunk 20 / 40, the crop box in the ChArUco world frame.
@@ -77,6 +82,22 @@ PRESETS: dict[str, dict[tuple[str, str], dict[str, object]]] = {
         ("*", "image"): {"encoder": "resnet18"},
         ("*", "point"): {"num_tokens": 128},
         # DP3 as its code runs: xyz points scaled to [-1, 1] (here over the crop box)
+        ("*", "dp3"): {"point_features": "xyz", "point_normalization": "box"},
+    },
+    "dp3": {
+        (DP, "all"): {
+            # DP3 predicts 4 steps; LeRobot's config refuses a horizon that is not a multiple of 2 ** len(down_dims)
+            "horizon": 8,
+            "n_action_steps": 3,
+            "drop_n_last_frames": 4,  # horizon - n_action_steps - n_obs_steps + 1
+            "noise_scheduler_type": "DDIM",
+            "prediction_type": "sample",
+            "num_inference_steps": 10,
+            "optimizer_betas": [0.95, 0.999],
+            "optimizer_weight_decay": 1e-6,
+        },
+        ("*", "image"): {"encoder": "resnet18"},
+        ("*", "point"): {"encoder": "dp3", "num_tokens": 512},
         ("*", "dp3"): {"point_features": "xyz", "point_normalization": "box"},
     },
     "tiny": {
