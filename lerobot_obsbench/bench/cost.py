@@ -126,8 +126,9 @@ def demo_seconds(grid: Grid, run: RunSpec, episodes: int, device: str) -> float:
     failed = episodes * (1 / record.expert_success_rate - 1)
     steps = grid.max_steps(run)
     used = min(1.0, EXPERT_MEAN_STEPS[run.task] / steps) if run.task in EXPERT_MEAN_STEPS else 0.6
-    # a Meta-World recording renders colour and depth, priced as a policy that reads both (its expert costs less)
-    rendered = "colour+depth" if is_metaworld_name(run.task) else None
+    # a Meta-World recording renders colour and depth of the grid's cameras, priced as a policy that reads what is
+    # rendered (its expert costs less)
+    rendered = ("colour+depth" if grid.cameras else "none") if is_metaworld_name(run.task) else None
     size = run.image_size
     return episode_seconds(episodes, steps, device, image_size=size, used=used, rendered=rendered) + episode_seconds(
         failed, steps, device, image_size=size, used=1.0, rendered=rendered

@@ -841,6 +841,9 @@ def test_metaworld_evaluations_and_recordings_are_priced_by_what_mujoco_renders(
     # a recording: the expert's measured mean length, each step rendering colour and depth
     episode = EXPERT_MEAN_STEPS["drawer-open-v3"] / METAWORLD_EVAL_STEPS_PER_SECOND["colour+depth"]
     assert demo_seconds(grid, run, 10, "cpu") == pytest.approx(10 * episode + 10 + 10)  # no failed attempts
+    blind = parse_grid({"tasks": ["drawer-open-v3"], "obs_spaces": ["none"], "steps": 10, "cameras": []})
+    episode = EXPERT_MEAN_STEPS["drawer-open-v3"] / METAWORLD_EVAL_STEPS_PER_SECOND["none"]  # physics alone
+    assert demo_seconds(blind, blind.expand()[0], 10, "cpu") == pytest.approx(10 * episode + 10 + 10)
     epochs = parse_grid({"tasks": ["drawer-open-v3"], "obs_spaces": ["none"], "frame_epochs": 3, "batch_size": 10})
     run = epochs.expand()[0]
     frames = round(run.demos * EXPERT_MEAN_STEPS["drawer-open-v3"])  # before the demonstrations exist: an estimate
