@@ -39,7 +39,7 @@ from lerobot_obsbench.bench.specs import (
     RunSpec,
 )
 from lerobot_obsbench.envs.base_task import TaskError, check_cameras
-from lerobot_obsbench.envs.catalog import METAWORLD_CONTROL_MODE, is_metaworld, task_record
+from lerobot_obsbench.envs.catalog import task_record
 from lerobot_obsbench.envs.maniskill import DEFAULT_CONTROL_MODE
 from lerobot_obsbench.envs.perturbations import parse_perturbation
 from lerobot_obsbench.presets import PRESETS
@@ -147,9 +147,7 @@ class Grid:
                 **variant,
             }
             rlbench = grid_task_name(task) is not None
-            control_mode = RLBENCH_CONTROL_MODE if rlbench else self.control_mode
-            if not rlbench and is_metaworld(task_record(task)):
-                control_mode = METAWORLD_CONTROL_MODE
+            control_mode = RLBENCH_CONTROL_MODE if rlbench else task_record(task).control_mode or self.control_mode
             for encoder, augment in itertools.product(self.encoders[space], self.augmentations.get(space, [""])):
                 runs.append(
                     RunSpec(

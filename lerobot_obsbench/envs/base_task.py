@@ -112,6 +112,9 @@ class Task:
     # Share of the expert's attempts that succeed (the docstring says where it was measured): a grid's dry run
     # prices the failed attempts that recording its demonstrations takes by it.
     expert_success_rate: ClassVar[float] = 1.0
+    # The one control mode the task acts by; None: ManiSkill's controllers, chosen by the grid or the command
+    # (`control_mode`).
+    control_mode: ClassVar[str | None] = None
     # ManiSkill asset download id when the task needs downloaded assets.
     asset_group: ClassVar[str | None] = None
     # Attributes of the ManiSkill env holding the actors whose poses (xyz + quaternion wxyz, 7 values each, in this

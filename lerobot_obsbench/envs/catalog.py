@@ -8,8 +8,6 @@ from __future__ import annotations
 from lerobot_obsbench.envs.base_task import task_spec
 from lerobot_obsbench.envs.metaworld.tasks import MetaWorldTask, is_metaworld_name, metaworld_task
 
-METAWORLD_CONTROL_MODE = "mocap_delta_pos"  # Meta-World's action: the hand's displacement (mocap) and the gripper
-
 
 def task_record(name: str):
     """The record of the task named `name`; an unknown name is refused with its simulator's closest names."""

@@ -36,7 +36,7 @@ import torch
 from tqdm import tqdm
 
 from lerobot_obsbench.envs.base_task import eval_seeds
-from lerobot_obsbench.envs.catalog import METAWORLD_CONTROL_MODE, is_metaworld, make_task_env, task_record
+from lerobot_obsbench.envs.catalog import is_metaworld, make_task_env, task_record
 from lerobot_obsbench.envs.maniskill import (
     ACTION_DIMS,
     DEFAULT_CONTROL_MODE,
@@ -63,12 +63,10 @@ def check_compatible(config, cameras: list[str], image_size: int, control_mode: 
     check_compatibility(config, cameras, (image_size, image_size), state, action, spec.privileged_actors)
 
 
-def _metaworld_options(control_mode: str, perturbation: str | None, sim_backend: str) -> None:
+def _metaworld_options(spec, control_mode: str, perturbation: str | None, sim_backend: str) -> None:
     """Refuse the ManiSkill-only settings for a Meta-World task, which would otherwise be ignored."""
-    if control_mode not in (DEFAULT_CONTROL_MODE, METAWORLD_CONTROL_MODE):
-        raise UsageError(
-            f"Meta-World tasks act by {METAWORLD_CONTROL_MODE} only; got --env.control_mode {control_mode}"
-        )
+    if control_mode not in (DEFAULT_CONTROL_MODE, spec.control_mode):
+        raise UsageError(f"Meta-World tasks act by {spec.control_mode} only; got --env.control_mode {control_mode}")
     if perturbation not in (None, "none"):
         raise UsageError(
             f"zero-shot perturbations are ManiSkill's; Meta-World tasks have none yet (got {perturbation})"
@@ -157,7 +155,7 @@ def evaluate(
     seeds = eval_seeds(episodes, split)
     slots = min(batch_size, len(seeds))
     if is_metaworld(spec):
-        _metaworld_options(control_mode, perturbation, sim_backend)
+        _metaworld_options(spec, control_mode, perturbation, sim_backend)
         sim = "mujoco"
     else:
         sim = choose_sim_backend(sim_backend, device, slots, perturbation)

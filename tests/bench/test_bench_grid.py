@@ -789,13 +789,12 @@ def test_a_metaworld_grid_records_with_corner2_acts_by_mocap_and_crops_the_table
     """A grid of Meta-World tasks: LeRobot's camera unless named, its own control mode in the runs (so their demos
     are never a ManiSkill task's), the table's crop box for point clouds, Meta-World's budget; other simulators'
     tasks and unknown names refused."""
-    from lerobot_obsbench.envs.catalog import METAWORLD_CONTROL_MODE
     from lerobot_obsbench.envs.metaworld.tasks import MAX_STEPS, TABLE_WORKSPACE
 
     grid = parse_grid({"tasks": ["drawer-open-v3"], "obs_spaces": ["state", "pointcloud"], "steps": 10})
     runs = {run.obs_space: run for run in grid.expand()}
     assert grid.cameras == ["corner2"]
-    assert {run.control_mode for run in runs.values()} == {METAWORLD_CONTROL_MODE}
+    assert {run.control_mode for run in runs.values()} == {"mocap_delta_pos"}  # its task record's
     assert dict(runs["pointcloud"].policy_overrides)["workspace"] == list(TABLE_WORKSPACE)
     assert "workspace" not in dict(runs["state"].policy_overrides)
     assert grid.max_steps(runs["state"]) == MAX_STEPS

@@ -33,7 +33,7 @@ def test_the_task_list_is_lerobots_with_dp3s_groups():
     assert metaworld_task("metaworld-drawer-open-v3").expert == "SawyerDrawerOpenV3Policy"
 
 
-def test_an_unknown_task_or_camera_is_refused_with_the_close_names():
+def test_an_unknown_task_or_camera_or_another_control_mode_is_refused_before_anything_slow():
     with pytest.raises(TaskError, match=r"unknown Meta-World task 'drawer-opn-v3'; did you mean drawer-open-v3"):
         metaworld_task("drawer-opn-v3")
     started = time.perf_counter()
@@ -45,6 +45,12 @@ def test_an_unknown_task_or_camera_is_refused_with_the_close_names():
         MetaWorldEnvConfig(task="drawer-opn-v3")
     with pytest.raises(TaskError, match=r"drawer-open-v3 has no such camera"):
         MetaWorldEnvConfig(task=TASK, cameras=["wrist"])
+    # ManiSkill's controllers are refused for the one Meta-World acts by, before the policy loads
+    from lerobot_obsbench.envs.evaluate import evaluate
+    from lerobot_obsbench.errors import UsageError
+
+    with pytest.raises(UsageError, match="Meta-World tasks act by mocap_delta_pos only; got --env.control_mode pd_"):
+        evaluate("no/such/checkpoint", TASK, 1, control_mode="pd_joint_delta_pos")
 
 
 def _refusal(environment: dict) -> subprocess.CompletedProcess:

@@ -62,8 +62,11 @@ class MetaWorldTask:
     objects: tuple = ()  # no object sizes for the diagnostics' pixel and point counts yet
     asset_group: None = None  # Meta-World ships its models
     camera: None = None  # the scene's cameras as Meta-World (and LeRobot) place them
-    # not measured per task: the recorder logs every failed attempt (the cost model then prices none)
+    # 1.0 for every task, though a few experts fail now and then (docs/metaworld.md, "Cost"): the recorder logs
+    # every failed attempt, and the cost model prices none
     expert_success_rate: float = 1.0
+    # Meta-World's one action: the hand's displacement (mocap) and the gripper's effort
+    control_mode: str = "mocap_delta_pos"
 
     def make_expert(self, env) -> MetaWorldExpert:
         """The scripted expert driving `env` (a `MetaWorldEnv` of this task)."""
