@@ -3,12 +3,12 @@ env render: nothing (the blind and oracle controls), depth (`depth`), colour (`r
 `pointcloud`, `pointmap`). The cost model prices Meta-World evaluations and demonstrations with these rates, as
 it prices ManiSkill's with `bench_eval`'s.
 
-Each space's policy is the `cpu` preset's obs_act (the main job's sizes), trained for a few steps by stock
-lerobot-train on a few scripted demonstrations (its success does not matter: the rate is per env step); each is
-then evaluated by `envs.evaluate.evaluate` (what `obsbench eval` and a grid's evaluation units run) on the same
-seeds with a short episode budget, and timed from the env's start to its last episode. Spaces are evaluated in
-turn, `--rounds` times over, so whatever else the machine does falls on all alike; a space's rate is its env
-steps over its seconds summed over the rounds.
+Each space's policy is the `cpu` preset's obs_act (the main job's sizes), trained as a grid's run is (the grid's
+lerobot-train command) for a few steps on a few scripted demonstrations (its success does not matter: the rate is
+per env step); each is then evaluated by `envs.evaluate.evaluate` (what `obsbench eval` and a grid's evaluation
+units run) on the same seeds with a short episode budget, and timed from the env's start to its last episode.
+Spaces are evaluated in turn, `--rounds` times over, so whatever else the machine does falls on all alike; a
+space's rate is its env steps over its seconds summed over the rounds.
 
     .venv/bin/python -m benchmarks.bench_metaworld_eval [--task drawer-open-v3] [--image-size 64] [--episodes 4]
         [--episode-length 50] [--rounds 2] [--work DIR] [--out FILE]
@@ -22,48 +22,32 @@ from __future__ import annotations
 import argparse
 import os
 import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 from benchmarks.common import write
 from lerobot_obsbench.bench.cost import rendered_for
+from lerobot_obsbench.bench.grid import parse_grid
+from lerobot_obsbench.bench.units import train_command
 from lerobot_obsbench.cli import main as obsbench
 from lerobot_obsbench.envs.evaluate import evaluate
-from lerobot_obsbench.envs.metaworld.tasks import TABLE_WORKSPACE
 from lerobot_obsbench.numeric import number_argument
-from lerobot_obsbench.presets import preset_args
-from lerobot_obsbench.schema import MIN_IMAGE_SIZE, space_info
+from lerobot_obsbench.schema import MIN_IMAGE_SIZE
 
 SPACES = ("none", "state", "depth", "rgb", "rgbd", "pointcloud")
 
 
-def checkpoint(work: Path, dataset: Path, obs_space: str) -> Path:
-    """The space's checkpoint under `work`, trained by stock lerobot-train unless it is there."""
-    out = work / f"train-{obs_space}"
+def checkpoint(work: Path, dataset: Path, run) -> Path:
+    """The checkpoint of `run` (a grid's run) under `work`, trained as the grid trains it, by stock lerobot-train,
+    unless it is there."""
+    out = work / f"train-{run.obs_space}"
     model = out / "checkpoints" / "last" / "pretrained_model"
     if model.exists():
         return model
-    command = [
-        f"{os.path.dirname(sys.executable)}/lerobot-train",
-        "--policy.type=obs_act",
-        f"--policy.obs_space={obs_space}",
-        "--policy.device=cpu",
-        "--policy.push_to_hub=false",
-        *preset_args("cpu", "obs_act", obs_space),
-        *([f"--policy.workspace={list(TABLE_WORKSPACE)}"] if space_info(obs_space).points else []),
-        "--dataset.repo_id=local/metaworld",
-        f"--dataset.root={dataset}",
-        "--batch_size=4",
-        "--steps=4",
-        "--save_freq=4",
-        "--num_workers=0",
-        "--wandb.enable=false",
-        f"--output_dir={out}",
-    ]
     environment = {**os.environ, "HF_HUB_OFFLINE": "1", "HF_DATASETS_OFFLINE": "1"}
-    print(f"training {obs_space} ...", flush=True)
+    print(f"training {run.obs_space} ...", flush=True)
+    command = train_command(run, dataset, out, run.steps(), "cpu", save_every=run.steps())
     subprocess.run(command, env=environment, check=True, capture_output=True, text=True)
     return model
 
@@ -85,7 +69,11 @@ def main(argv: list[str] | None = None) -> None:
         demos = ["demos", "--task", args.task, "--episodes", "2", "--out", str(dataset)]
         if obsbench([*demos, "--image-size", str(args.image_size)]) != 0:
             raise SystemExit("recording the demonstrations failed")
-        models = {space: checkpoint(work, dataset, space) for space in SPACES}
+        grid = parse_grid(
+            {"tasks": [args.task], "obs_spaces": list(SPACES), "preset": "cpu", "demos": [2], "batch_size": 4}
+            | {"steps": 4, "checkpoints": 1, "image_size": args.image_size}
+        )
+        models = {run.obs_space: checkpoint(work, dataset, run) for run in grid.expand()}
         totals = {space: [0, 0.0] for space in SPACES}
         for _ in range(args.rounds):
             for space, model in models.items():
