@@ -12,8 +12,9 @@ from lerobot_obsbench.bench.grid import Grid
 from lerobot_obsbench.bench.specs import EvalSpec, RunSpec
 from lerobot_obsbench.bench.units import demo_dir, demo_frames, demos_recorded
 from lerobot_obsbench.envs.catalog import task_record
+from lerobot_obsbench.envs.metaworld.env import rendered_sensors
 from lerobot_obsbench.envs.metaworld.tasks import is_metaworld_name
-from lerobot_obsbench.schema import DEPTH_PREFIX, IMAGE_PREFIX, is_control, reads_points, space_info
+from lerobot_obsbench.schema import DEPTH_PREFIX, IMAGE_PREFIX, is_control, reads_points
 
 DEMO_FRAMES_PER_EPISODE = 30  # for estimates before the demonstrations exist, for a task whose expert is not measured
 
@@ -68,11 +69,10 @@ def space_kind(obs_space: str) -> str:
 
 
 def rendered_for(obs_space: str) -> str:
-    """What a Meta-World env renders for a policy on `obs_space` (it renders only what the policy reads): "none",
-    "depth", "colour" or "colour+depth"."""
-    read = space_info(obs_space).sensors
-    kinds = [name for prefix, name in ((IMAGE_PREFIX, "colour"), (DEPTH_PREFIX, "depth")) if prefix in read]
-    return "+".join(kinds) or "none"
+    """What a Meta-World env renders for a policy on `obs_space` (`rendered_sensors`), as the rates name it:
+    "none", "depth", "colour" or "colour+depth"."""
+    names = {IMAGE_PREFIX: "colour", DEPTH_PREFIX: "depth"}
+    return "+".join(names[prefix] for prefix in rendered_sensors(obs_space)) or "none"
 
 
 def train_seconds(run: RunSpec, steps: int, device: str) -> float:

@@ -46,11 +46,12 @@ from lerobot_obsbench.envs.maniskill import (
 )
 from lerobot_obsbench.envs.metaworld.env import ACTION_SIZE as METAWORLD_ACTION
 from lerobot_obsbench.envs.metaworld.env import STATE_SIZE as METAWORLD_STATE
+from lerobot_obsbench.envs.metaworld.env import rendered_sensors
 from lerobot_obsbench.envs.vector import make_envs
 from lerobot_obsbench.errors import ConfigError, UsageError
 from lerobot_obsbench.outputs import record_outputs, write_json_atomic, write_text_atomic
 from lerobot_obsbench.policies.loading import load_policy
-from lerobot_obsbench.schema import DEPTH_PREFIX, IMAGE_PREFIX, check_compatibility, space_info
+from lerobot_obsbench.schema import IMAGE_PREFIX, check_compatibility
 from lerobot_obsbench.stats import per_seed, success_summary
 
 
@@ -169,8 +170,8 @@ def evaluate(
     steps = episode_length or spec.max_steps
     env_kwargs = dict(task=task, cameras=cameras, image_size=size, episode_length=steps)
     if is_metaworld(spec):  # rendering only the sensors the policy reads
-        read = space_info(policy.config.obs_space).sensors if hasattr(policy.config, "obs_space") else (IMAGE_PREFIX,)
-        env_kwargs["sensors"] = tuple(prefix for prefix in (IMAGE_PREFIX, DEPTH_PREFIX) if prefix in read)
+        plugin = hasattr(policy.config, "obs_space")
+        env_kwargs["sensors"] = rendered_sensors(policy.config.obs_space) if plugin else (IMAGE_PREFIX,)
     else:
         env_kwargs.update(control_mode=control_mode, asset_dir=asset_dir, perturbation=perturbation, device=device)
     start = time.time()

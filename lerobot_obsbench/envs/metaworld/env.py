@@ -49,6 +49,7 @@ from lerobot_obsbench.schema import (
     image_key,
     intrinsics_key,
     privileged_state_names,
+    space_info,
 )
 
 ARM_JOINTS = tuple(f"right_j{i}" for i in range(7))
@@ -81,6 +82,12 @@ def opencv_cam2world(position: np.ndarray, mujoco_rotation: np.ndarray, turned: 
 def _turned(image: np.ndarray, camera: str) -> np.ndarray:
     """`image` as the camera shows it: turned half a turn for `TURNED_CAMERAS`."""
     return np.ascontiguousarray(image[::-1, ::-1]) if camera in TURNED_CAMERAS else image
+
+
+def rendered_sensors(obs_space: str) -> tuple[str, ...]:
+    """What the env renders for a policy on `obs_space` (`sensors`): of colour and depth, those the space reads."""
+    read = space_info(obs_space).sensors
+    return tuple(prefix for prefix in (IMAGE_PREFIX, DEPTH_PREFIX) if prefix in read)
 
 
 def _import_metaworld():
