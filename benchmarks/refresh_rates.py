@@ -13,7 +13,8 @@ come from benchmark results under `benchmarks/results/`; this tool derives them 
 - cuda evaluation env steps/s: the device check's rerun (`device_check_cuda_rerun.json`);
 - cuda training samples/s: the device check's quick-grid steps (cpu and tiny presets; the tiny one is bounded by
   them) and its ACT rows at the paper's sizes (image: their mean; point: PointNet there and SpUNet-34 from
-  `train_step_cuda_paper.json`; none: not measured, the image rate bounds it).
+  `train_step_cuda_paper.json`; none: not measured, the image rate bounds it); the dp3 preset's are not measured
+  on a GPU: the paper preset's stand in.
 
     .venv/bin/python -m benchmarks.refresh_rates            # rewrite the measured rates
     .venv/bin/python -m benchmarks.refresh_rates --check    # exit 1, naming each rate that differs
@@ -83,7 +84,8 @@ def cuda_train_rates(results: Path = RESULTS) -> dict[str, dict[str, float]]:
         raise RatesError("the device check has no ACT rows at the paper's sizes for images and point clouds")
     small = {kind: round(rate, -1) for kind, rate in small.items()}
     image = round(mean(images), -1)
-    return {"tiny": small, "cpu": small, "paper": {"image": image, "point": round(mean(points), -1), "none": image}}
+    paper = {"image": image, "point": round(mean(points), -1), "none": image}
+    return {"tiny": small, "cpu": small, "paper": paper, "dp3": paper}
 
 
 def metaworld_eval_rates(results: Path = RESULTS) -> dict[str, float]:
