@@ -73,7 +73,8 @@ def main(argv: list[str] | None = None) -> None:
             {"tasks": [args.task], "obs_spaces": list(SPACES), "preset": "cpu", "demos": [2], "batch_size": 4}
             | {"steps": 4, "checkpoints": 1, "image_size": args.image_size}
         )
-        models = {run.obs_space: checkpoint(work, dataset, run) for run in grid.expand()}
+        runs = {run.obs_space: run for run in grid.expand()}
+        models = {space: checkpoint(work, dataset, run) for space, run in runs.items()}
         totals = {space: [0, 0.0] for space in SPACES}
         for _ in range(args.rounds):
             for space, model in models.items():
@@ -91,7 +92,7 @@ def main(argv: list[str] | None = None) -> None:
     rows = [
         {
             "obs_space": space,
-            "rendered": rendered_for(space),
+            "rendered": rendered_for(space, runs[space].point_features),
             "env_steps": steps,
             "seconds": round(seconds, 2),
             "env_steps_per_s": round(steps / seconds, 2),

@@ -35,6 +35,7 @@ POLICY_TYPES = ("obs_act", "obs_diffusion")
 
 # Per-point features of a point cloud, with their channel counts.
 POINT_FEATURES = {"rgb+xyz": 6, "xyz": 3, "rgb": 3}
+DEFAULT_POINT_FEATURES = "rgb+xyz"  # the paper's
 # Frames point coordinates can be expressed in: world (robot base), the first camera, the end effector.
 FRAMES = ("world", "camera", "ee")
 # Where the point tokenizer's FPS + kNN grouping sits: after the backbone (paper default) or before it.
@@ -214,7 +215,7 @@ def has_positions(name: str) -> bool:
     return space_info(name).positions
 
 
-def input_channels(name: str, point_features: str = "rgb+xyz") -> int:
+def input_channels(name: str, point_features: str = DEFAULT_POINT_FEATURES) -> int:
     """Channels the encoder receives: image channels, per-point feature size for point clouds, 0 when blind."""
     space = space_info(name)
     if space.points and not space.fused:
@@ -250,9 +251,23 @@ def cam2world_key(cam: str) -> str:
     return CAM2WORLD_PREFIX + cam
 
 
-def sensor_keys(obs_space: str, cameras: list[str] | tuple[str, ...]) -> list[str]:
-    """Dataset keys an observation space reads, camera by camera."""
-    return [prefix + cam for cam in cameras for prefix in space_info(obs_space).sensors]
+def read_sensors(obs_space: str, point_features: str = DEFAULT_POINT_FEATURES) -> tuple[str, ...]:
+    """The per-camera sensors a policy on `obs_space` reads: its space's, but no colour where only a point cloud
+    would take it and its points carry none (`point_features` without rgb), so no colour is rendered or decoded
+    that no input uses."""
+    space = space_info(obs_space)
+    check_choice("point_features", point_features, POINT_FEATURES)
+    point_colour = "rgb" in point_features.split("+")
+    parts = [space_info(part) for part in space.parts] or [space]
+    colour = any(IMAGE_PREFIX in part.sensors and (point_colour or not part.points) for part in parts)
+    return tuple(prefix for prefix in space.sensors if prefix != IMAGE_PREFIX or colour)
+
+
+def sensor_keys(
+    obs_space: str, cameras: list[str] | tuple[str, ...], point_features: str = DEFAULT_POINT_FEATURES
+) -> list[str]:
+    """Dataset keys a policy on an observation space reads (`read_sensors`), camera by camera."""
+    return [prefix + cam for cam in cameras for prefix in read_sensors(obs_space, point_features)]
 
 
 def is_sensor_key(key: str) -> bool:

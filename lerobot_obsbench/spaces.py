@@ -42,6 +42,7 @@ from lerobot_obsbench.augmentations import Augmenter, parse_augment
 from lerobot_obsbench.errors import ConfigError
 from lerobot_obsbench.numeric import check_number, check_numbers
 from lerobot_obsbench.schema import (
+    DEFAULT_POINT_FEATURES,
     DEPTH_NORMALIZATIONS,
     FRAMES,
     POINT_FEATURES,
@@ -98,7 +99,7 @@ class AdapterConfig:
     obs_space: str
     cameras: tuple[str, ...] = ()
     frame: str = "world"
-    point_features: str = "rgb+xyz"
+    point_features: str = DEFAULT_POINT_FEATURES
     workspace: tuple[float, ...] = DEFAULT_WORKSPACE
     voxel_size: float = 0.005
     depth_clip: tuple[float, float] = (0.0, 2.0)
@@ -312,21 +313,30 @@ class ObservationAdapter(nn.Module):
         offsets = torch.rand(batch_size, 6, device=workspace.device, dtype=workspace.dtype) * 2 - 1
         return workspace + offsets * self._jitter
 
+    @property
+    def _point_colour(self) -> bool:
+        """Whether the points carry colour: without it the cloud reads no colour frame (`read_sensors`)."""
+        return "rgb" in self.config.point_features.split("+")
+
     def fuse_cameras(self, batch: dict, box: Sequence[float]) -> tuple[Tensor, Tensor, Tensor]:
         """Every camera's pixels that can land in `box` (xmin, xmax, ..., world frame), side by side: world points
-        (B, N, 3), colours in [-1, 1] (B, N, 3) and where depth is valid (B, N)."""
+        (B, N, 3), colours in [-1, 1] (B, N, 3; (B, N, 0) where the points carry none) and where depth is valid
+        (B, N)."""
         xyz, rgb, valid = [], [], []
         for cam in self.config.cameras:
             points, cam_valid, (rows, columns) = self._world_points(batch, cam, box)
+            xyz.append(points.flatten(1, 2))
+            valid.append(cam_valid.flatten(1))
+            if not self._point_colour:  # no colour is read: an empty channel keeps the stages' shapes
+                rgb.append(xyz[-1][..., :0])
+                continue
             colour, size = self._rgb(batch, cam), batch[depth_key(cam)].shape[1:3]
             if colour.shape[-2:] != size:
                 raise SchemaError(
                     f"{image_key(cam)} is {tuple(colour.shape[-2:])} but {depth_key(cam)} is {tuple(size)}: "
                     "point clouds need depth aligned to colour at the same resolution."
                 )
-            xyz.append(points.flatten(1, 2))
             rgb.append(colour[..., rows, columns].permute(0, 2, 3, 1).flatten(1, 2) * 2 - 1)
-            valid.append(cam_valid.flatten(1))
         return torch.cat(xyz, 1), torch.cat(rgb, 1), torch.cat(valid, 1)
 
     def crop_to_workspace(self, xyz: Tensor, rgb: Tensor, valid: Tensor, box: Tensor) -> tuple[Tensor, Tensor, Tensor]:

@@ -14,7 +14,7 @@ from lerobot_obsbench.bench.units import demo_dir, demo_frames, demos_recorded
 from lerobot_obsbench.envs.catalog import task_record
 from lerobot_obsbench.envs.metaworld.env import rendered_sensors
 from lerobot_obsbench.envs.metaworld.tasks import is_metaworld_name
-from lerobot_obsbench.schema import DEPTH_PREFIX, IMAGE_PREFIX, is_control, reads_points
+from lerobot_obsbench.schema import DEFAULT_POINT_FEATURES, DEPTH_PREFIX, IMAGE_PREFIX, is_control, reads_points
 
 DEMO_FRAMES_PER_EPISODE = 30  # for estimates before the demonstrations exist, for a task whose expert is not measured
 
@@ -68,11 +68,11 @@ def space_kind(obs_space: str) -> str:
     return "point" if reads_points(obs_space) else "none" if is_control(obs_space) else "image"
 
 
-def rendered_for(obs_space: str) -> str:
-    """What a Meta-World env renders for a policy on `obs_space` (`rendered_sensors`), as the rates name it:
-    "none", "depth", "colour" or "colour+depth"."""
+def rendered_for(obs_space: str, point_features: str = DEFAULT_POINT_FEATURES) -> str:
+    """What a Meta-World env renders for a policy on `obs_space` whose points carry `point_features`
+    (`rendered_sensors`), as the rates name it: "none", "depth", "colour" or "colour+depth"."""
     names = {IMAGE_PREFIX: "colour", DEPTH_PREFIX: "depth"}
-    return "+".join(names[prefix] for prefix in rendered_sensors(obs_space)) or "none"
+    return "+".join(names[prefix] for prefix in rendered_sensors(obs_space, point_features)) or "none"
 
 
 def train_seconds(run: RunSpec, steps: int, device: str) -> float:
@@ -112,7 +112,7 @@ def episode_seconds(
 def eval_seconds(spec: EvalSpec, run: RunSpec, device: str, batch_size: int = 1) -> float:
     """`spec`, an evaluation of `run`, with `batch_size` episodes in lockstep."""
     rlbench = run.rlbench_task is not None
-    rendered = rendered_for(run.obs_space) if is_metaworld_name(run.task) else None
+    rendered = rendered_for(run.obs_space, run.point_features) if is_metaworld_name(run.task) else None
     return episode_seconds(
         spec.episodes, spec.max_steps, device, rlbench, batch_size, run.image_size, task=run.task, rendered=rendered
     )

@@ -21,8 +21,9 @@ import math
 from dataclasses import asdict, dataclass
 
 from lerobot_obsbench.errors import ObsBenchError
-from lerobot_obsbench.presets import policy_flags, preset_args
+from lerobot_obsbench.presets import policy_flags, preset_args, preset_overrides
 from lerobot_obsbench.rlbench.paper_tasks import grid_task_name
+from lerobot_obsbench.schema import DEFAULT_POINT_FEATURES
 
 BUDGET_UNITS = {
     "steps": "optimizer steps",
@@ -112,6 +113,15 @@ class RunSpec:
             *([f"--policy.augment={self.augment}"] if self.augment else []),
             f"--policy.optimizer_lr={self.lr}",
         ]
+
+    @property
+    def point_features(self) -> str:
+        """The features its policy's points carry: the run's override, else its preset's, else the default."""
+        overrides = dict(self.policy_overrides)
+        if "point_features" in overrides:
+            return str(overrides["point_features"])
+        preset = preset_overrides(self.preset, self.policy, self.obs_space, self.encoder)
+        return str(preset.get("point_features", DEFAULT_POINT_FEATURES))
 
     @property
     def method(self) -> str:

@@ -171,7 +171,9 @@ def evaluate(
     env_kwargs = dict(task=task, cameras=cameras, image_size=size, episode_length=steps)
     if is_metaworld(spec):  # rendering only the sensors the policy reads
         plugin = hasattr(policy.config, "obs_space")
-        env_kwargs["sensors"] = rendered_sensors(policy.config.obs_space) if plugin else (IMAGE_PREFIX,)
+        env_kwargs["sensors"] = (
+            rendered_sensors(policy.config.obs_space, policy.config.point_features) if plugin else (IMAGE_PREFIX,)
+        )
     else:
         env_kwargs.update(control_mode=control_mode, asset_dir=asset_dir, perturbation=perturbation, device=device)
     start = time.time()

@@ -23,6 +23,7 @@ from lerobot_obsbench.errors import ConfigError
 from lerobot_obsbench.numeric import check_number, check_numbers
 from lerobot_obsbench.policies.onecycle import OneCycleSchedulerConfig
 from lerobot_obsbench.schema import (
+    DEFAULT_POINT_FEATURES,
     DEPTH_PREFIX,
     EE_POSE_SIZE,
     PRIVILEGED_STATE_KEY,
@@ -118,7 +119,7 @@ class ObservationConfig:
     # from the last 7 values of observation.state: xyz + quaternion wxyz).
     frame: str = "world"
     # Per-point features: "rgb+xyz" (paper default), "xyz" or "rgb".
-    point_features: str = "rgb+xyz"
+    point_features: str = DEFAULT_POINT_FEATURES
     # Point tokenizer placement: "post" (encode all points, then FPS + kNN; paper default) or "pre".
     sampling: str = "post"
     # Number of FPS seeds = point tokens (paper: 2048).
@@ -366,7 +367,7 @@ class ObservationConfig:
         # the dataset's own features: validate_features registers calibrated depth itself, and names a LeRobot
         # depth map that lacks its calibration
         cameras = validate_features(features, self.obs_space, self.cameras or None, calibration)
-        for key in sensor_keys(self.obs_space, cameras):
+        for key in sensor_keys(self.obs_space, cameras, self.point_features):
             if key in features:
                 reads.add(key)
             elif key.startswith(DEPTH_PREFIX):  # registered from the camera's LeRobot depth map
@@ -375,7 +376,7 @@ class ObservationConfig:
 
     def observation_keys(self) -> list[str]:
         oracle = [PRIVILEGED_STATE_KEY] if space_info(self.obs_space).control == "oracle" else []
-        return sensor_keys(self.obs_space, self.cameras) + oracle
+        return sensor_keys(self.obs_space, self.cameras, self.point_features) + oracle
 
     def encoder_options(self) -> dict:
         """The chosen encoder's options, taken from this config (`image_size` from the camera resolution, MultiViT's

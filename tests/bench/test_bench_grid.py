@@ -828,14 +828,23 @@ def test_metaworld_evaluations_and_recordings_are_priced_by_what_mujoco_renders(
         "rgbd": "colour+depth",
         "pointcloud": "colour+depth",
     }
+    assert rendered_for("pointcloud", "xyz") == "depth"  # points without colour: no colour frame
     assert set(METAWORLD_EVAL_STEPS_PER_SECOND) == {"none", "depth", "colour", "colour+depth"}
     grid = parse_grid({"tasks": ["drawer-open-v3"], "obs_spaces": ["none", "depth", "rgb", "pointcloud"], "steps": 10})
     for run in grid.expand():
         spec = grid.evaluations(run)[0]
-        rate = METAWORLD_EVAL_STEPS_PER_SECOND[rendered_for(run.obs_space)]
+        rate = METAWORLD_EVAL_STEPS_PER_SECOND[rendered_for(run.obs_space, run.point_features)]
         expected = spec.episodes * spec.max_steps * 0.6 / rate + 10
         assert eval_seconds(spec, run, "cpu") == pytest.approx(expected), run.obs_space
         assert eval_seconds(spec, run, "cuda") == pytest.approx(expected)  # not measured on a GPU: the cpu rate
+    # a run's point features are its override's, else its preset's (the cpu preset's DP3: xyz), else the default
+    clouds = {"tasks": ["drawer-open-v3"], "obs_spaces": ["pointcloud"], "steps": 10, "preset": "cpu"}
+    for encoder, overrides, features in (("dp3", {}, "xyz"), ("dp3", {"point_features": "rgb+xyz"}, "rgb+xyz")):
+        run = parse_grid({**clouds, "encoders": {"pointcloud": [encoder]}, "policy_overrides": overrides}).expand()[0]
+        assert run.point_features == features
+        rate = METAWORLD_EVAL_STEPS_PER_SECOND["depth" if features == "xyz" else "colour+depth"]
+        spec = EvalSpec(run.run_id, "last", "test", 4, "none", 100)
+        assert eval_seconds(spec, run, "cpu") == pytest.approx(4 * 100 * 0.6 / rate + 10)
     run = grid.expand()[0]
     # a recording: the expert's measured mean length, each step rendering colour and depth
     episode = EXPERT_MEAN_STEPS["drawer-open-v3"] / METAWORLD_EVAL_STEPS_PER_SECOND["colour+depth"]

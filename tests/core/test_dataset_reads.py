@@ -110,15 +110,19 @@ def test_served_keys_are_lerobots_and_only_what_the_policy_reads(
     assert {"observation.state", "action"} <= reads
 
 
-@pytest.mark.parametrize("obs_space", ["none", "state", "depth"])
-def test_spaces_without_colour_never_decode_video(dataset, monkeypatch, obs_space):
+@pytest.mark.parametrize(
+    ("obs_space", "options"),
+    [("none", {}), ("state", {}), ("depth", {}), ("pointcloud", {"encoder": "dp3", "point_features": "xyz"})],
+)
+def test_inputs_without_colour_never_decode_video(dataset, monkeypatch, obs_space, options):
+    """The controls, depth and a point cloud whose points carry no colour (DP3's xyz) read no colour frame."""
     import lerobot.datasets.dataset_reader as lerobot_reader
 
     def no_decoding(*args, **kwargs):
         raise AssertionError("a video was decoded")
 
     monkeypatch.setattr(lerobot_reader, "decode_video_frames", no_decoding)
-    served = open_dataset(dataset, make_config(ObsACTConfig, obs_space, None), "memory", monkeypatch)
+    served = open_dataset(dataset, ObsACTConfig(obs_space=obs_space, device="cpu", **options), "memory", monkeypatch)
     assert VIDEO not in served[0] and len([served[i] for i in range(len(served))]) == 45
 
 

@@ -20,9 +20,12 @@ from lerobot_obsbench.encoders import (
     make_encoder,
 )
 from lerobot_obsbench.schema import (
+    IMAGE_PREFIX,
+    SENSOR_PREFIXES,
     PointCloud,
     available_spaces,
     fused_space,
+    read_sensors,
     reads_images,
     reads_points,
     register_space,
@@ -41,6 +44,19 @@ def test_a_fused_space_reads_what_its_parts_read():
     assert FUSED in available_spaces() and space_info(FUSED).parts == ("rgb", "pointcloud")
     assert set(sensor_keys(FUSED, [CAM])) == set(sensor_keys("rgb", [CAM])) | set(sensor_keys("pointcloud", [CAM]))
     assert reads_points(FUSED) and reads_images(FUSED) and not reads_points("rgb") and not reads_images("pointcloud")
+
+
+def test_colour_is_read_only_where_an_input_takes_it():
+    """A cloud of xyz points reads depth and the calibration but no colour; the fused space's rgb part and a
+    pointmap's image read colour whatever the point features."""
+    assert read_sensors("pointcloud") == SENSOR_PREFIXES
+    assert read_sensors("pointcloud", "xyz") == tuple(p for p in SENSOR_PREFIXES if p != IMAGE_PREFIX)
+    assert read_sensors("pointcloud", "rgb") == SENSOR_PREFIXES
+    for space in (FUSED, "pointmap", "rgb", "rgbd"):
+        assert read_sensors(space, "xyz") == space_info(space).sensors, space
+    assert IMAGE_PREFIX + CAM not in sensor_keys("pointcloud", [CAM], "xyz")
+    with pytest.raises(ValueError, match="point_features"):
+        read_sensors("pointcloud", "normals")
 
 
 def test_the_adapter_gives_each_parts_input_as_the_parts_own_space_does(synthetic_module):

@@ -79,6 +79,21 @@ def test_point_feature_choices(batch, features, channels):
         assert torch.equal(cloud.features, cloud.xyz)
 
 
+def test_a_cloud_without_colour_features_reads_no_colour_frame(batch):
+    """point_features="xyz": the adapter never reads the colour frame (the env need not render it, nor the reader
+    decode it), and the cloud is the one it builds with the frame there."""
+    config = AdapterConfig("pointcloud", [CAM], point_features="xyz", workspace=WORKSPACE)
+    with_colour = ObservationAdapter(config).eval()(batch)
+    colourless = {key: value for key, value in batch.items() if not key.startswith("observation.images.")}
+    assert len(colourless) < len(batch)
+    without = ObservationAdapter(config).eval()(colourless)
+    for name in ("xyz", "features", "mask"):
+        assert torch.equal(getattr(without, name), getattr(with_colour, name)), name
+    assert with_colour.mask.sum() > 0
+    with pytest.raises(SchemaError, match="observation.images"):  # colour features do read it
+        ObservationAdapter(AdapterConfig("pointcloud", [CAM], workspace=WORKSPACE)).eval()(colourless)
+
+
 def test_box_normalised_point_features_span_the_crop_box(batch):
     """point_normalization="box": the xyz features are the points' coordinates mapped to [-1, 1] over the box (as
     DP3 scales its clouds); positions, colours and the sampled points stay those of the metric cloud."""

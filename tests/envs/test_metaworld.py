@@ -15,7 +15,7 @@ import pytest
 from lerobot_obsbench import geometry, schema
 from lerobot_obsbench.envs.base_task import TaskError
 from lerobot_obsbench.envs.metaworld.configuration import MetaWorldEnvConfig
-from lerobot_obsbench.envs.metaworld.env import STATE_SIZE, MetaWorldEnv
+from lerobot_obsbench.envs.metaworld.env import STATE_SIZE, MetaWorldEnv, rendered_sensors
 from lerobot_obsbench.envs.metaworld.rendering import choose_gl
 from lerobot_obsbench.envs.metaworld.tasks import CAMERAS, metaworld_task, metaworld_tasks, tasks_of
 from tests.support.paths import REPO_ROOT
@@ -140,6 +140,23 @@ def test_a_frame_has_the_schemas_keys_and_a_seed_places_the_objects():
         env.close()
 
 
+def test_the_env_renders_only_what_the_policy_reads():
+    """Nothing for the controls, colour for images, depth for depth, both for a cloud with coloured points and
+    depth alone for one of xyz points (DP3's); the frame then holds what was rendered, with its calibration."""
+    colour, depth = schema.IMAGE_PREFIX, schema.DEPTH_PREFIX
+    expected = {("none", "rgb+xyz"): (), ("state", "rgb+xyz"): (), ("rgb", "rgb+xyz"): (colour,)}
+    expected |= {("depth", "rgb+xyz"): (depth,), ("pointcloud", "rgb+xyz"): (colour, depth)}
+    expected |= {("pointcloud", "xyz"): (depth,), ("rgb+pointcloud", "xyz"): (colour, depth)}
+    assert {key: rendered_sensors(*key) for key in expected} == expected
+    env = MetaWorldEnv(TASK, cameras=["corner2"], image_size=32, sensors=rendered_sensors("pointcloud", "xyz"))
+    try:
+        frame = schema.env_observation_to_frame(env.reset(seed=0)[0])
+    finally:
+        env.close()
+    assert schema.image_key("corner2") not in frame and frame[schema.depth_key("corner2")].shape == (32, 32, 1)
+    assert schema.cam2world_key("corner2") in frame and schema.intrinsics_key("corner2") in frame
+
+
 def test_the_scripted_expert_solves_its_task_with_nothing_rendered():
     env = MetaWorldEnv(TASK, cameras=[])
     try:
@@ -239,8 +256,9 @@ def test_demonstrations_record_validate_view_train_and_evaluate_with_stock_lerob
 
 @pytest.mark.slow
 def test_a_metaworld_grid_runs_from_nothing_to_its_report(tmp_path):
-    """`obsbench run` on a Meta-World grid: demonstrations, the controls and a point-cloud policy trained, each
-    evaluated on the task's test seeds, and the report reads the results."""
+    """`obsbench run` on a Meta-World grid: demonstrations, the controls and a point-cloud policy (DP3 on xyz
+    points, so its env renders depth alone) trained, each evaluated on the task's test seeds, and the report reads
+    the results."""
     import json
 
     from lerobot_obsbench.cli import main
@@ -249,11 +267,12 @@ def test_a_metaworld_grid_runs_from_nothing_to_its_report(tmp_path):
     grid.write_text(
         "tasks: [drawer-open-v3]\nobs_spaces: [none, state, pointcloud]\npreset: tiny\nseeds: [1000]\ndemos: [2]\n"
         "batch_size: 4\nsteps: 2\ncheckpoints: 1\nimage_size: 32\neval_episodes: 1\nepisode_length: 5\n"
+        "encoders: {pointcloud: [dp3]}\nspace_overrides: {pointcloud: {point_features: xyz}}\n"
     )
     out = tmp_path / "out"
     assert main(["run", str(grid), "--out", str(out), "--workers", "1"]) == 0
     records = [json.loads(line) for line in (out / "results.jsonl").read_text().splitlines()]
     methods = {r["method"] for r in records if r["kind"] == "eval" and r["split"] == "test"}
-    assert methods == {"obs_act/none/blind", "obs_act/state/oracle", "obs_act/pointcloud/pointnet"}
+    assert methods == {"obs_act/none/blind", "obs_act/state/oracle", "obs_act/pointcloud/dp3"}
     assert main(["report", str(out / "results.jsonl"), "--out", str(tmp_path / "report")]) == 0
     assert "drawer-open-v3" in (tmp_path / "report" / "report.md").read_text()

@@ -37,6 +37,7 @@ from lerobot_obsbench.envs.metaworld.tasks import (
 )
 from lerobot_obsbench.errors import ConfigError, MissingDependencyError
 from lerobot_obsbench.schema import (
+    DEFAULT_POINT_FEATURES,
     DEPTH_PREFIX,
     IMAGE_PREFIX,
     MIN_IMAGE_SIZE,
@@ -49,7 +50,7 @@ from lerobot_obsbench.schema import (
     image_key,
     intrinsics_key,
     privileged_state_names,
-    space_info,
+    read_sensors,
 )
 
 ARM_JOINTS = tuple(f"right_j{i}" for i in range(7))
@@ -84,9 +85,10 @@ def _turned(image: np.ndarray, camera: str) -> np.ndarray:
     return np.ascontiguousarray(image[::-1, ::-1]) if camera in TURNED_CAMERAS else image
 
 
-def rendered_sensors(obs_space: str) -> tuple[str, ...]:
-    """What the env renders for a policy on `obs_space` (`sensors`): of colour and depth, those the space reads."""
-    read = space_info(obs_space).sensors
+def rendered_sensors(obs_space: str, point_features: str = DEFAULT_POINT_FEATURES) -> tuple[str, ...]:
+    """What the env renders for a policy on `obs_space` whose points carry `point_features` (`sensors`): of colour
+    and depth, those the policy reads (`read_sensors`)."""
+    read = read_sensors(obs_space, point_features)
     return tuple(prefix for prefix in (IMAGE_PREFIX, DEPTH_PREFIX) if prefix in read)
 
 
