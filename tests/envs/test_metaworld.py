@@ -15,7 +15,7 @@ import pytest
 from lerobot_obsbench import geometry, schema
 from lerobot_obsbench.envs.base_task import TaskError
 from lerobot_obsbench.envs.metaworld.configuration import MetaWorldEnvConfig
-from lerobot_obsbench.envs.metaworld.env import STATE_SIZE, MetaWorldEnv, rendered_sensors
+from lerobot_obsbench.envs.metaworld.env import SHADOW_MAP_SIZE, STATE_SIZE, MetaWorldEnv, rendered_sensors
 from lerobot_obsbench.envs.metaworld.rendering import choose_gl
 from lerobot_obsbench.envs.metaworld.tasks import CAMERAS, metaworld_task, metaworld_tasks, tasks_of
 from tests.support.paths import REPO_ROOT
@@ -155,6 +155,32 @@ def test_the_env_renders_only_what_the_policy_reads():
         env.close()
     assert schema.image_key("corner2") not in frame and frame[schema.depth_key("corner2")].shape == (32, 32, 1)
     assert schema.cam2world_key("corner2") in frame and schema.intrinsics_key("corner2") in frame
+
+
+def test_colour_keeps_the_scenes_shadows_from_a_smaller_shadow_map():
+    """The env's colour frames come from a 1024-pixel shadow map where the scene asks 4096: the same frame within a
+    grey level on average, the shadows still there (the frame differs from one rendered without them)."""
+    import mujoco
+
+    from lerobot_obsbench.envs.metaworld.rendering import open_renderer
+
+    env = MetaWorldEnv(TASK, cameras=["corner2"], image_size=64, sensors=(schema.IMAGE_PREFIX,))
+    try:
+        env.reset(seed=0)
+        model, own = env._env.model, env._renderer
+        assert model.vis.quality.shadowsize == SHADOW_MAP_SIZE < 4096
+        frame = env._render("corner2", colour=True, depth=False)[0].astype(float)
+        model.vis.quality.shadowsize = 4096
+        env._renderer = open_renderer(model, 64, 64)
+        scene_map = env._render("corner2", colour=True, depth=False)[0].astype(float)
+        env._renderer.close()
+        env._renderer = own
+        own.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
+        unshadowed = env._render("corner2", colour=True, depth=False)[0].astype(float)
+    finally:
+        env.close()
+    assert np.abs(frame - scene_map).mean() < 1.0
+    assert np.abs(frame - unshadowed).mean() > 5 * np.abs(frame - scene_map).mean()
 
 
 def test_the_scripted_expert_solves_its_task_with_nothing_rendered():
