@@ -864,6 +864,32 @@ def test_metaworld_evaluations_and_recordings_are_priced_by_what_mujoco_renders(
     )
 
 
+def test_cpu_metaworld_ranks_every_space_on_probed_easy_and_medium_tasks(capsys):
+    """The `cpu-metaworld` grid: eight tasks of DP3's easy and medium groups, each one the oracle probe tried, every
+    space with both controls over three seeds; its point clouds are DP3's xyz, so their env renders depth alone;
+    and a dry run that prices it."""
+    import yaml
+
+    from lerobot_obsbench.bench.cost import rendered_for
+    from lerobot_obsbench.envs.metaworld.tasks import tasks_of
+
+    grid = load_grid("cpu-metaworld")
+    runs = grid.expand()
+    probe = yaml.safe_load((REPO_ROOT / "docs/results/metaworld/oracle-probe.yaml").read_text())
+    assert len(grid.tasks) == 8 and set(grid.tasks) <= set(probe["tasks"])
+    assert {group for group in ("easy", "medium") if set(grid.tasks) & set(tasks_of(group))} == {"easy", "medium"}
+    assert set(grid.tasks) <= {*tasks_of("easy"), *tasks_of("medium")}
+    assert {r.obs_space for r in runs} == {"none", "state", "rgb", "depth", "pointcloud"} and len(runs) == 120
+    assert sorted({r.seed for r in runs}) == [1000, 1001, 1002]
+    clouds = [r for r in runs if r.obs_space == "pointcloud"]
+    assert {(r.encoder, r.point_features, rendered_for(r.obs_space, r.point_features)) for r in clouds} == {
+        ("dp3", "xyz", "depth")
+    }
+    assert main(["run", "cpu-metaworld", "--dry-run", "--out", "/nonexistent/out"]) == 0
+    text = capsys.readouterr().out
+    assert "120 runs, 0 already trained, 120 to train" in text and "400 episodes of reach-v3 (50)" in text
+
+
 def test_dp3_metaworld_is_dp3s_protocol_on_its_fifty_tasks_and_is_priced(capsys):
     """The `dp3-metaworld` preset grid: DP3's 50 Meta-World tasks by difficulty group, 10 demonstrations, Diffusion
     Policy with DP3's settings (3 of the predicted actions executed, DDIM with 10 steps predicting the sample, DP3's
