@@ -785,17 +785,18 @@ def test_checkpoints_kept_and_the_spacing_that_saves_them(steps, checkpoints, cu
     assert all(s % freq == 0 for s in kept[:-1])
 
 
-def test_a_metaworld_grid_records_with_corner2_acts_by_mocap_and_crops_the_table():
+def test_a_metaworld_grid_records_with_corner2_acts_by_mocap_and_crops_the_tasks_box():
     """A grid of Meta-World tasks: LeRobot's camera unless named, its own control mode in the runs (so their demos
-    are never a ManiSkill task's), the table's crop box for point clouds, Meta-World's budget; other simulators'
-    tasks and unknown names refused."""
-    from lerobot_obsbench.envs.metaworld.tasks import MAX_STEPS, TABLE_WORKSPACE
+    are never a ManiSkill task's), the task's measured crop box (inside the table's) for point clouds, Meta-World's
+    budget; other simulators' tasks and unknown names refused."""
+    from lerobot_obsbench.envs.metaworld.tasks import MAX_STEPS, TABLE_WORKSPACE, metaworld_task
 
     grid = parse_grid({"tasks": ["drawer-open-v3"], "obs_spaces": ["state", "pointcloud"], "steps": 10})
     runs = {run.obs_space: run for run in grid.expand()}
     assert grid.cameras == ["corner2"]
     assert {run.control_mode for run in runs.values()} == {"mocap_delta_pos"}  # its task record's
-    assert dict(runs["pointcloud"].policy_overrides)["workspace"] == list(TABLE_WORKSPACE)
+    box = dict(runs["pointcloud"].policy_overrides)["workspace"]
+    assert box == list(metaworld_task("drawer-open-v3").workspace) != list(TABLE_WORKSPACE)
     assert "workspace" not in dict(runs["state"].policy_overrides)
     assert grid.max_steps(runs["state"]) == MAX_STEPS
     with pytest.raises(GridError, match="Meta-World and ManiSkill tasks in one grid"):
@@ -871,6 +872,7 @@ def test_cpu_metaworld_ranks_every_space_on_probed_easy_and_medium_tasks(capsys)
     import yaml
 
     from lerobot_obsbench.bench.cost import rendered_for
+    from lerobot_obsbench.envs.catalog import task_record
     from lerobot_obsbench.envs.metaworld.tasks import tasks_of
 
     grid = load_grid("cpu-metaworld")
@@ -885,6 +887,9 @@ def test_cpu_metaworld_ranks_every_space_on_probed_easy_and_medium_tasks(capsys)
     assert {(r.encoder, r.point_features, rendered_for(r.obs_space, r.point_features)) for r in clouds} == {
         ("dp3", "xyz", "depth")
     }
+    # each task's cloud is cropped to its own measured box
+    assert all(dict(r.policy_overrides)["workspace"] == list(task_record(r.task).workspace) for r in clouds)
+    assert len({tuple(dict(r.policy_overrides)["workspace"]) for r in clouds}) == len(grid.tasks)
     assert main(["run", "cpu-metaworld", "--dry-run", "--out", "/nonexistent/out"]) == 0
     text = capsys.readouterr().out
     assert "120 runs, 0 already trained, 120 to train" in text and "400 episodes of reach-v3 (50)" in text
@@ -913,6 +918,10 @@ def test_dp3_metaworld_is_dp3s_protocol_on_its_fifty_tasks_and_is_priced(capsys)
         "prediction_type": "sample",
     }
     assert (fields["num_inference_steps"], fields["num_tokens"], fields["point_features"]) == (10, 512, "xyz")
+    from lerobot_obsbench.envs.metaworld.tasks import TABLE_WORKSPACE
+
+    clouds = [r for r in runs if r.obs_space == "pointcloud"]  # DP3's one box for every task
+    assert {tuple(dict(r.policy_overrides)["workspace"]) for r in clouds} == {TABLE_WORKSPACE}
     assert {s.episodes for r in runs[:5] for s in grid.evaluations(r)} == {20}
     assert {grid.max_steps(r) for r in runs} == {200}
     assert main(["run", "dp3-metaworld", "--dry-run", "--out", "/nonexistent/out"]) == 0

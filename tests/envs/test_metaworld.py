@@ -183,6 +183,28 @@ def test_colour_keeps_the_scenes_shadows_from_a_smaller_shadow_map():
     assert np.abs(frame - unshadowed).mean() > 5 * np.abs(frame - scene_map).mean()
 
 
+def test_each_tasks_crop_box_is_measured_from_its_experts_episodes():
+    """workspaces.json holds a box for every task LeRobot lists, inside the table's box and from its surface up,
+    and each task crops its own; measuring a task again over the file's seeds gives the box it holds."""
+    import json
+
+    from lerobot_obsbench.envs.metaworld.tasks import TABLE_WORKSPACE, WORKSPACES_FILE
+    from lerobot_obsbench.envs.metaworld.workspaces import crop_box, task_positions
+
+    stored = json.loads(WORKSPACES_FILE.read_text())
+    assert set(stored["tasks"]) == set(metaworld_tasks())
+    table = np.asarray(TABLE_WORKSPACE).reshape(3, 2)
+    for name, box in stored["tasks"].items():
+        bounds = np.asarray(box).reshape(3, 2)
+        assert (bounds[:, 0] >= table[:, 0]).all() and (bounds[:, 1] <= table[:, 1]).all(), name
+        assert (bounds[:, 1] - bounds[:, 0] >= 0.2).all() and bounds[2, 0] == table[2, 0], name
+        assert metaworld_task(name).workspace == tuple(box)
+    assert len({tuple(box) for box in stored["tasks"].values()}) > 10  # the tasks' boxes differ
+    positions = task_positions("reach-v3", stored["episodes"])
+    assert list(crop_box(positions)) == stored["tasks"]["reach-v3"]
+    assert len(positions) > 3 * stored["episodes"]  # every step's hand and object, and each goal
+
+
 def test_the_scripted_expert_solves_its_task_with_nothing_rendered():
     env = MetaWorldEnv(TASK, cameras=[])
     try:

@@ -33,6 +33,7 @@ def test_a_wheel_installed_in_a_scratch_venv_finds_the_preset_grids(tmp_path):
     assert "lerobot_obsbench/configs/grids/paper-main.yaml" in names
     assert "lerobot_obsbench/bench/tables/table2_dp.csv" in names
     assert "lerobot_obsbench/bench/rates.json" in names  # the cost model the dry run below prices with
+    assert "lerobot_obsbench/envs/metaworld/workspaces.json" in names  # the Meta-World tasks' crop boxes
     assert not any(name.startswith("tests/") for name in names)  # test support stays out of the package
     venv = tmp_path / "scratch"
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True, timeout=300)

@@ -16,6 +16,7 @@ import re
 from dataclasses import dataclass
 from functools import cache
 from importlib import resources
+from pathlib import Path
 
 from lerobot_obsbench.envs.base_task import TaskError
 
@@ -35,9 +36,12 @@ METAWORLD_PREFIX = "metaworld-"  # LeRobot's task prefix
 DIFFICULTIES = ("easy", "medium", "hard", "very_hard")  # DP3's groups, as LeRobot names them
 
 
-# The crop box of every Meta-World task (metres, world frame: xmin xmax ymin ymax zmin zmax): the table top and the
-# space above it that the arm reaches, the table's surface kept.
+# The table top and the space above it that the arm reaches, the table's surface kept (metres, world frame: xmin
+# xmax ymin ymax zmin zmax): DP3's one box for every task, and the bounds of each task's own.
 TABLE_WORKSPACE = (-0.6, 0.6, 0.2, 1.0, -0.01, 0.6)
+# Each task's crop box inside it, measured from its expert's episodes (`workspaces.py`); a task it lacks crops the
+# whole table.
+WORKSPACES_FILE = Path(__file__).with_name("workspaces.json")
 
 
 @dataclass(frozen=True)
@@ -101,8 +105,15 @@ def metaworld_tasks() -> dict[str, MetaWorldTask]:
     """Every Meta-World task LeRobot lists, by name, in LeRobot's order."""
     config = _lerobot_config()
     difficulty = {task: group for group, tasks in config["DIFFICULTY_TO_TASKS"].items() for task in tasks}
+    boxes = json.loads(WORKSPACES_FILE.read_text())["tasks"] if WORKSPACES_FILE.exists() else {}
     return {
-        name: MetaWorldTask(name, description, difficulty.get(name, "unrated"), config["TASK_POLICY_MAPPING"][name])
+        name: MetaWorldTask(
+            name,
+            description,
+            difficulty.get(name, "unrated"),
+            config["TASK_POLICY_MAPPING"][name],
+            workspace=tuple(boxes.get(name, TABLE_WORKSPACE)),
+        )
         for name, description in config["TASK_DESCRIPTIONS"].items()
     }
 
