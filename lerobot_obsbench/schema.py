@@ -251,13 +251,17 @@ def cam2world_key(cam: str) -> str:
     return CAM2WORLD_PREFIX + cam
 
 
+def points_carry_colour(point_features: str) -> bool:
+    """Whether points with `point_features` ("rgb+xyz", "xyz", "rgb") carry their pixel's colour."""
+    return "rgb" in check_choice("point_features", point_features, POINT_FEATURES).split("+")
+
+
 def read_sensors(obs_space: str, point_features: str = DEFAULT_POINT_FEATURES) -> tuple[str, ...]:
     """The per-camera sensors a policy on `obs_space` reads: its space's, but no colour where only a point cloud
     would take it and its points carry none (`point_features` without rgb), so no colour is rendered or decoded
     that no input uses."""
     space = space_info(obs_space)
-    check_choice("point_features", point_features, POINT_FEATURES)
-    point_colour = "rgb" in point_features.split("+")
+    point_colour = points_carry_colour(point_features)
     parts = [space_info(part) for part in space.parts] or [space]
     colour = any(IMAGE_PREFIX in part.sensors and (point_colour or not part.points) for part in parts)
     return tuple(prefix for prefix in space.sensors if prefix != IMAGE_PREFIX or colour)

@@ -62,6 +62,7 @@ from lerobot_obsbench.schema import (
     image_key,
     intrinsics_key,
     is_control,
+    points_carry_colour,
     reads_points,
     space_info,
     stock_depth_key,
@@ -313,11 +314,6 @@ class ObservationAdapter(nn.Module):
         offsets = torch.rand(batch_size, 6, device=workspace.device, dtype=workspace.dtype) * 2 - 1
         return workspace + offsets * self._jitter
 
-    @property
-    def _point_colour(self) -> bool:
-        """Whether the points carry colour: without it the cloud reads no colour frame (`read_sensors`)."""
-        return "rgb" in self.config.point_features.split("+")
-
     def fuse_cameras(self, batch: dict, box: Sequence[float]) -> tuple[Tensor, Tensor, Tensor]:
         """Every camera's pixels that can land in `box` (xmin, xmax, ..., world frame), side by side: world points
         (B, N, 3), colours in [-1, 1] (B, N, 3; (B, N, 0) where the points carry none) and where depth is valid
@@ -327,7 +323,8 @@ class ObservationAdapter(nn.Module):
             points, cam_valid, (rows, columns) = self._world_points(batch, cam, box)
             xyz.append(points.flatten(1, 2))
             valid.append(cam_valid.flatten(1))
-            if not self._point_colour:  # no colour is read: an empty channel keeps the stages' shapes
+            # points without colour read no colour frame (`read_sensors`): an empty channel keeps the stages' shapes
+            if not points_carry_colour(self.config.point_features):
                 rgb.append(xyz[-1][..., :0])
                 continue
             colour, size = self._rgb(batch, cam), batch[depth_key(cam)].shape[1:3]

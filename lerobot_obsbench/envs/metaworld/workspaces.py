@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
-from pathlib import Path
 
 import numpy as np
 
@@ -60,16 +58,10 @@ def crop_box(positions: np.ndarray) -> tuple[float, ...]:
     """(xmin, xmax, ymin, ymax, zmin, zmax): `positions` widened by `MARGIN`, from the table's surface
     (`TABLE_WORKSPACE`'s zmin) up, inside `TABLE_WORKSPACE`, rounded outwards to the centimetre."""
     table = np.asarray(TABLE_WORKSPACE).reshape(3, 2)
-    low = np.maximum(positions.min(axis=0) - MARGIN, table[:, 0])
-    high = np.minimum(positions.max(axis=0) + MARGIN, table[:, 1])
+    low = np.maximum(np.floor((positions.min(axis=0) - MARGIN) * 100) / 100, table[:, 0])
+    high = np.minimum(np.ceil((positions.max(axis=0) + MARGIN) * 100) / 100, table[:, 1])
     low[2] = table[2, 0]
-    box = []
-    for axis in range(3):
-        box += [
-            max(math.floor(low[axis] * 100) / 100, table[axis, 0]),
-            min(math.ceil(high[axis] * 100) / 100, table[axis, 1]),
-        ]
-    return tuple(round(value, 2) for value in box)
+    return tuple(round(float(value), 2) for value in np.stack([low, high], axis=1).ravel())
 
 
 def measure(tasks: list[str], episodes: int) -> dict[str, list[float]]:
@@ -86,7 +78,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--tasks", nargs="+", help="default: every task LeRobot lists")
     args = parser.parse_args(argv)
     tasks = [metaworld_task(name).name for name in args.tasks] if args.tasks else list(metaworld_tasks())
-    path = Path(WORKSPACES_FILE)
+    path = WORKSPACES_FILE
     stored = json.loads(path.read_text()) if path.exists() else {}
     if args.tasks and stored and stored.get("episodes") != args.episodes:
         raise SystemExit(
