@@ -102,7 +102,7 @@ def _import_metaworld():
 
 
 # MuJoCo's shadow map (pixels a side; the scene's default is 4096): a quarter of the side renders the same lighting
-# and shadows with softer edges, in about half the time on a CPU renderer (docs/metaworld.md#cost).
+# and shadows with softer edges, far cheaper on a CPU renderer (measured: docs/metaworld.md#cost).
 SHADOW_MAP_SIZE = 1024
 
 
