@@ -55,36 +55,56 @@ def _size(feature: dict) -> list[int]:
     return shape[:2] if shape[-1] in (1, 3) else shape[1:]  # (H, W, C) as LeRobot records, else (C, H, W)
 
 
+def _stream_profiles(rs, device, sizes, what: str) -> tuple:
+    """The colour and depth video stream profiles of `device` (named `what` in errors): the ones a recording holds
+    (`sizes` None), else the camera's rgb8 colour and z16 depth profiles at `sizes` = (colour (H, W), depth (H, W))."""
+    wanted = {rs.stream.color: rs.format.rgb8, rs.stream.depth: rs.format.z16}
+    offered = {kind: [] for kind in wanted}
+    for sensor in device.query_sensors():
+        for profile in sensor.get_stream_profiles():
+            if profile.stream_type() in wanted and profile.is_video_stream_profile():
+                offered[profile.stream_type()].append(profile.as_video_stream_profile())
+    chosen = []
+    for (kind, fmt), size in zip(wanted.items(), sizes or (None, None), strict=True):
+        name = "colour" if kind == rs.stream.color else "depth"
+        found = [p for p in offered[kind] if size is None or (p.format() == fmt and [p.height(), p.width()] == size)]
+        if not found:
+            have = sorted({f"{p.height()}x{p.width()}" for p in offered[kind]})
+            want = "" if size is None else f"{size[0]}x{size[1]} (HxW) "
+            raise SchemaError(f"the {what} has no {want}{name} stream (it has: {', '.join(have) or 'none'})")
+        chosen.append(found[0])
+    return tuple(chosen)
+
+
 def realsense_streams(recording: str | Path | None = None, serial: str | None = None, sizes=None) -> dict:
     """Intrinsics, depth->colour extrinsic and depth unit of a RealSense (by serial) or of a .bag recording, as
-    `CameraCalibration` fields (without cam2world). `sizes` = (colour (H, W), depth (H, W)) asks a live camera for
-    those stream resolutions; a recording gives the ones it holds."""
+    `CameraCalibration` fields (without cam2world). `sizes` = (colour (H, W), depth (H, W)) picks a live camera's
+    stream resolutions; a recording gives the ones it holds. Read from the stream profiles, without streaming:
+    stopping a pipeline that plays a short recording crashed librealsense now and then."""
     from lerobot_obsbench.robots.realsense.realsense_rgbd import import_realsense, pinhole_K
 
     rs = import_realsense()
-    pipeline, config = rs.pipeline(), rs.config()
+    context = rs.context()
     if recording is not None:
         if not Path(recording).is_file():
             raise MissingFileError(f"--from-recording {recording}: no such file")
-        config.enable_device_from_file(str(recording), repeat_playback=False)
+        try:
+            device = context.load_device(str(recording))
+        except RuntimeError as err:
+            raise SchemaError(f"cannot open the recording {recording}: {err}") from None
+        sizes, what = None, f"recording {recording}"
     else:
-        config.enable_device(serial)
-        (ch, cw), (dh, dw) = sizes
-        config.enable_stream(rs.stream.color, cw, ch, rs.format.rgb8, 30)
-        config.enable_stream(rs.stream.depth, dw, dh, rs.format.z16, 30)
+        found = [d for d in context.query_devices() if d.get_info(rs.camera_info.serial_number) == serial]
+        if not found:
+            raise SchemaError(f"no RealSense with serial {serial} is connected (`obsbench find-cameras` lists them)")
+        device, what = found[0], f"RealSense {serial}"
     try:
-        profile = pipeline.start(config)
-    except RuntimeError as err:
-        what = f"recording {recording}" if recording is not None else f"RealSense {serial}"
-        raise SchemaError(f"cannot open the {what}: {err} (`obsbench find-cameras` lists connected cameras)") from None
-    try:
-        color = profile.get_stream(rs.stream.color).as_video_stream_profile()
-        depth = profile.get_stream(rs.stream.depth).as_video_stream_profile()
+        color, depth = _stream_profiles(rs, device, sizes, what)
         extrinsics = depth.get_extrinsics_to(color)
         depth_to_color = np.eye(4)
         depth_to_color[:3, :3] = np.asarray(extrinsics.rotation, dtype=np.float64).reshape(3, 3).T  # column-major
         depth_to_color[:3, 3] = extrinsics.translation
-        scale = profile.get_device().first_depth_sensor().get_depth_scale()
+        scale = device.first_depth_sensor().get_depth_scale()
         ci, di = color.get_intrinsics(), depth.get_intrinsics()
         return {
             "color_size": [ci.height, ci.width],
@@ -95,7 +115,8 @@ def realsense_streams(recording: str | Path | None = None, serial: str | None = 
             "depth_unit_mm": float(scale) * 1000.0,
         }
     finally:
-        pipeline.stop()
+        if recording is not None:
+            context.unload_device(str(recording))
 
 
 def read_cam2world(path: str | Path) -> list[list[float]]:

@@ -204,6 +204,34 @@ def test_attach_from_a_realsense_recording(stock_dataset, tmp_path):
     assert calib.depth_min_mm == (10.0 if (root / "videos").exists() else 0.0)
 
 
+def test_a_camera_is_asked_for_the_dataset_stream_sizes(tmp_path):
+    """`--serial` picks the camera's rgb8 colour and z16 depth profiles at the dataset's sizes, read without
+    streaming; here the device is a recording's (librealsense's playback device), the same profiles API."""
+    from lerobot_obsbench.datasets.calibration import _stream_profiles
+    from lerobot_obsbench.robots.realsense.realsense_rgbd import import_realsense
+
+    rs = import_realsense()
+    (h, w), (hd, wd) = scene.COLOR_SIZE, scene.DEPTH_SIZE
+    kc, kd = scene.K_COLOR, scene.K_DEPTH
+    camera = SyntheticRGBD(
+        colour=StreamSpec(w, h, kc[0, 0], kc[1, 1], kc[0, 2], kc[1, 2]),
+        depth=StreamSpec(wd, hd, kd[0, 0], kd[1, 1], kd[0, 2], kd[1, 2]),
+    )
+    colour, depth_mm, _ = scene.render()
+    bag = tmp_path / "front.bag"
+    write_bag(bag, camera, [(colour, depth_mm[..., 0])])
+    context = rs.context()
+    device = context.load_device(str(bag))
+    try:
+        color, depth = _stream_profiles(rs, device, [[h, w], [hd, wd]], "RealSense 1")
+        assert (color.height(), color.width(), depth.height(), depth.width()) == (h, w, hd, wd)
+        assert (color.format(), depth.format()) == (rs.format.rgb8, rs.format.z16)
+        with pytest.raises(SchemaError, match=rf"RealSense 1 has no 480x640 \(HxW\) colour stream \(it has: {h}x{w}\)"):
+            _stream_profiles(rs, device, [[480, 640], [hd, wd]], "RealSense 1")
+    finally:
+        context.unload_device(str(bag))
+
+
 @pytest.mark.parametrize(
     "args,message",
     [
