@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import itertools
 import json
-from dataclasses import MISSING, dataclass, fields
+from dataclasses import MISSING, dataclass, fields, replace
 from pathlib import Path
 
 import yaml
@@ -171,6 +171,20 @@ class Grid:
                     )
                 )
         return runs
+
+    def piece(self, tasks: list[str] | None = None, obs_spaces: list[str] | None = None) -> Grid:
+        """This grid on some of its `tasks` and `obs_spaces` (None: all of them): the same runs with the same ids,
+        so pieces run one after another into one output folder add up to the whole grid."""
+        chosen = {}
+        for field_name, names, flag in (("tasks", tasks, "--tasks"), ("obs_spaces", obs_spaces, "--obs-spaces")):
+            own = getattr(self, field_name)
+            unknown = [name for name in names or [] if name not in own]
+            if unknown:
+                raise GridError(
+                    f"{flag} {' '.join(unknown)}: not in grid {self.name}'s {field_name} ({', '.join(own)})"
+                )
+            chosen[field_name] = [name for name in own if names is None or name in names]
+        return replace(self, **chosen)
 
     def max_steps(self, run: RunSpec) -> int:
         return int(self.episode_length or (RLBENCH_MAX_STEPS if run.rlbench_task else task_record(run.task).max_steps))

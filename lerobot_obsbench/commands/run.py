@@ -58,6 +58,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="DataLoader workers per training run (default: 0 on cpu, 4 on a GPU)",
     )
+    p.add_argument(
+        "--tasks",
+        nargs="+",
+        default=None,
+        metavar="TASK",
+        help="run only these of the grid's tasks (a piece of it: the same runs, into the same --out; the other "
+        "pieces or the whole grid rerun later finish it)",
+    )
+    p.add_argument(
+        "--obs-spaces", nargs="+", default=None, metavar="SPACE", help="run only these of the grid's obs_spaces"
+    )
     p.add_argument("--dry-run", action="store_true", help="print the runs still to do and a rough cost; run nothing")
     p.add_argument(
         "--rlbench-data", default=None, help="RLBench grids: PerAct's data (DIR/train|val|test/<task>), for the grid's"
@@ -70,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
     from lerobot_obsbench.bench.runner import run_grid
     from lerobot_obsbench.bench.specs import GridError
 
-    grid = load_grid(args.grid)
+    grid = load_grid(args.grid).piece(args.tasks, args.obs_spaces)
     for flag, value in (("--rlbench-data", args.rlbench_data), ("--clip-weights", args.clip_weights)):
         if value is not None and not grid.rlbench_data:
             raise GridError(f"{flag} applies to grids of RLBench tasks; {grid.name} has none")
@@ -95,6 +106,8 @@ def run(args: argparse.Namespace) -> int:
         return 1
     if not args.dry_run:
         print(f"done: results in {out / 'results.jsonl'}; `obsbench report {out / 'results.jsonl'}` makes the tables")
+        if args.tasks or args.obs_spaces:
+            print(f"(a piece of {grid.name}: the same command without --tasks/--obs-spaces runs what it left)")
     return 0
 
 

@@ -353,6 +353,23 @@ def test_dry_run_prints_the_plan_and_skips_finished_runs(tmp_path, capsys):
     assert not (tmp_path / "demos").exists()
 
 
+def test_a_grid_runs_in_pieces_with_the_whole_grids_run_ids(tmp_path, capsys):
+    whole = load_grid("cpu-ranking")
+    piece = whole.piece(["LiftPegUpright-v1", "PickCube-v1"], ["rgb"])
+    assert piece.tasks == ["PickCube-v1", "LiftPegUpright-v1"] and piece.obs_spaces == ["rgb"]
+    expected = [run for run in whole.expand() if run.task in piece.tasks and run.obs_space == "rgb"]
+    assert [run.run_id for run in piece.expand()] == [run.run_id for run in expected] and len(expected) == 6
+    assert whole.piece(None, None).expand() == whole.expand()
+    args = ["run", "cpu-ranking", "--out", str(tmp_path), "--dry-run", "--tasks", "PickCube-v1"]
+    assert main([*args, "--obs-spaces", "rgb", "none"]) == 0
+    text = capsys.readouterr().out
+    assert "6 runs, 0 already trained, 6 to train" in text and "LiftPegUpright" not in text
+    assert main([*args, "--obs-spaces", "rgbd"]) == 2
+    err = capsys.readouterr().err
+    assert "--obs-spaces rgbd: not in grid cpu-ranking's obs_spaces (none, state, rgb, pointcloud)" in err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "results.jsonl").exists()
+
+
 def test_dry_run_counts_steps_and_samples_in_the_papers_units(capsys):
     """paper-main: one sampled frame per demonstration per epoch -> ACT 500 x 1000 / 16, DP 1800 x 1000 / 64."""
     assert main(["run", "paper-main", "--dry-run", "--out", "/nonexistent/out"]) == 0
