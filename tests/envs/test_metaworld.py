@@ -18,6 +18,8 @@ from lerobot_obsbench.envs.metaworld.configuration import MetaWorldEnvConfig
 from lerobot_obsbench.envs.metaworld.env import SHADOW_MAP_SIZE, STATE_SIZE, MetaWorldEnv, rendered_sensors
 from lerobot_obsbench.envs.metaworld.rendering import choose_gl
 from lerobot_obsbench.envs.metaworld.tasks import CAMERAS, metaworld_task, metaworld_tasks, tasks_of
+from lerobot_obsbench.errors import ConfigError
+from lerobot_obsbench.schema import SchemaError
 from tests.support.paths import REPO_ROOT
 
 TASK = "drawer-open-v3"
@@ -45,6 +47,10 @@ def test_an_unknown_task_or_camera_or_another_control_mode_is_refused_before_any
         MetaWorldEnvConfig(task="drawer-opn-v3")
     with pytest.raises(TaskError, match=r"drawer-open-v3 has no such camera"):
         MetaWorldEnvConfig(task=TASK, cameras=["wrist"])
+    with pytest.raises(SchemaError, match=r"Unknown obs_space 'pointclod'; choose one of"):
+        MetaWorldEnvConfig(task=TASK, obs_space="pointclod")
+    with pytest.raises(ConfigError, match=r"--env.point_features=xyz is read with --env.obs_space only"):
+        MetaWorldEnvConfig(task=TASK, point_features="xyz")
     # ManiSkill's controllers are refused for the one Meta-World acts by, before the policy loads
     from lerobot_obsbench.envs.evaluate import evaluate
     from lerobot_obsbench.errors import UsageError
@@ -155,6 +161,10 @@ def test_the_env_renders_only_what_the_policy_reads():
         env.close()
     assert schema.image_key("corner2") not in frame and frame[schema.depth_key("corner2")].shape == (32, 32, 1)
     assert schema.cam2world_key("corner2") in frame and schema.intrinsics_key("corner2") in frame
+    # lerobot-eval's env config renders what the policy it is told of reads, and declares no colour it lacks
+    config = MetaWorldEnvConfig(task=TASK, obs_space="pointcloud", point_features="xyz")
+    assert config.gym_kwargs["sensors"] == (depth,) and "pixels/corner2" not in config.features
+    assert MetaWorldEnvConfig(task=TASK).gym_kwargs["sensors"] == (colour, depth)
 
 
 def test_colour_keeps_the_scenes_shadows_from_a_smaller_shadow_map():
@@ -272,6 +282,7 @@ def test_demonstrations_record_validate_view_train_and_evaluate_with_stock_lerob
         "--policy.device=cpu",
         "--policy.push_to_hub=false",
         *preset_args("tiny", "obs_act", "pointcloud"),
+        "--policy.point_features=xyz",
         f"--policy.workspace={box}",
         "--dataset.repo_id=local/drawer",
         f"--dataset.root={out}",
@@ -292,6 +303,8 @@ def test_demonstrations_record_validate_view_train_and_evaluate_with_stock_lerob
         f"--env.task={TASK}",
         "--env.image_size=32",
         "--env.episode_length=5",
+        "--env.obs_space=pointcloud",  # the env renders depth alone: DP3's xyz points read no colour
+        "--env.point_features=xyz",
         "--eval.n_episodes=1",
         "--eval.batch_size=1",
         f"--output_dir={tmp_path / 'eval'}",

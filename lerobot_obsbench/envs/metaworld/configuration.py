@@ -9,10 +9,19 @@ from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
 
 from lerobot_obsbench.envs.base_task import check_cameras
-from lerobot_obsbench.envs.metaworld.env import ACTION_SIZE, STATE_SIZE
+from lerobot_obsbench.envs.metaworld.env import ACTION_SIZE, STATE_SIZE, rendered_sensors
 from lerobot_obsbench.envs.metaworld.tasks import CONTROL_FPS, DEFAULT_CAMERA, MAX_STEPS, metaworld_task
+from lerobot_obsbench.errors import ConfigError
 from lerobot_obsbench.numeric import check_number
-from lerobot_obsbench.schema import ACTION_KEY, MIN_IMAGE_SIZE, STATE_KEY, image_key
+from lerobot_obsbench.schema import (
+    ACTION_KEY,
+    DEFAULT_POINT_FEATURES,
+    DEPTH_PREFIX,
+    IMAGE_PREFIX,
+    MIN_IMAGE_SIZE,
+    STATE_KEY,
+    image_key,
+)
 
 GYM_NAMESPACE = "obsbench_metaworld"
 
@@ -32,6 +41,11 @@ class MetaWorldEnvConfig(EnvConfig):
     image_size: int = 128
     # Steps per episode; None = Meta-World's 500.
     episode_length: int | None = None
+    # The policy's `--policy.obs_space` and `--policy.point_features`: the env renders only the sensors such a
+    # policy reads (depth alone for DP3's xyz point clouds, nothing for the controls), which sets how fast an
+    # evaluation runs. None: colour and depth.
+    obs_space: str | None = None
+    point_features: str = DEFAULT_POINT_FEATURES
 
     def __post_init__(self):
         check_cameras(metaworld_task(self.task), self.cameras)
@@ -41,17 +55,29 @@ class MetaWorldEnvConfig(EnvConfig):
             check_number(
                 "episode_length (steps; or None for Meta-World's own)", self.episode_length, whole=True, minimum=1
             )
+        if self.obs_space is None and self.point_features != DEFAULT_POINT_FEATURES:
+            raise ConfigError(
+                f"--env.point_features={self.point_features} is read with --env.obs_space only (the policy's space)"
+            )
+        colour = [cam for cam in self.cameras if IMAGE_PREFIX in self.sensors]  # refuses a bad space here
         size = (self.image_size, self.image_size, 3)
         self.features = {
             "action": PolicyFeature(FeatureType.ACTION, (ACTION_SIZE,)),
             "agent_pos": PolicyFeature(FeatureType.STATE, (STATE_SIZE,)),
-            **{f"pixels/{cam}": PolicyFeature(FeatureType.VISUAL, size) for cam in self.cameras},
+            **{f"pixels/{cam}": PolicyFeature(FeatureType.VISUAL, size) for cam in colour},
         }
         self.features_map = {
             "action": ACTION_KEY,
             "agent_pos": STATE_KEY,
-            **{f"pixels/{cam}": image_key(cam) for cam in self.cameras},
+            **{f"pixels/{cam}": image_key(cam) for cam in colour},
         }
+
+    @property
+    def sensors(self) -> tuple[str, ...]:
+        """What the env renders per camera (schema prefixes)."""
+        if self.obs_space is None:
+            return (IMAGE_PREFIX, DEPTH_PREFIX)
+        return rendered_sensors(self.obs_space, self.point_features)
 
     @property
     def package_name(self) -> str:
@@ -67,6 +93,7 @@ class MetaWorldEnvConfig(EnvConfig):
         # `max_episode_steps` is gym.make's TimeLimit (lerobot-eval reads it); `episode_length` reaches the env.
         return {
             "cameras": list(self.cameras),
+            "sensors": self.sensors,
             "image_size": self.image_size,
             "episode_length": steps,
             "max_episode_steps": steps,
