@@ -410,8 +410,9 @@ def _require(batch: dict, key: str) -> Tensor:
         raise SchemaError(
             f"Missing {key!r} in the observation batch (it has "
             f"{sorted(k for k in batch if k.startswith('observation'))}). "
-            "The chosen obs_space/cameras need it: record it in the dataset / env observation, or change "
-            "--policy.obs_space / --policy.cameras."
+            "The chosen obs_space/cameras need it: record it in the dataset / env observation (an env told what "
+            "to render, e.g. --env.obs_space, renders it for that space), or change --policy.obs_space / "
+            "--policy.cameras."
         )
     return batch[key]
 

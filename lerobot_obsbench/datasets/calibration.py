@@ -67,11 +67,12 @@ def _stream_profiles(rs, device, sizes, what: str) -> tuple:
     chosen = []
     for (kind, fmt), size in zip(wanted.items(), sizes or (None, None), strict=True):
         name = "colour" if kind == rs.stream.color else "depth"
-        found = [p for p in offered[kind] if size is None or (p.format() == fmt and [p.height(), p.width()] == size)]
+        usable = [p for p in offered[kind] if size is None or p.format() == fmt]
+        found = [p for p in usable if size is None or [p.height(), p.width()] == size]
         if not found:
-            have = sorted({f"{p.height()}x{p.width()}" for p in offered[kind]})
-            want = "" if size is None else f"{size[0]}x{size[1]} (HxW) "
-            raise SchemaError(f"the {what} has no {want}{name} stream (it has: {', '.join(have) or 'none'})")
+            have = ", ".join(f"{h}x{w}" for h, w in sorted({(p.height(), p.width()) for p in usable})) or "none"
+            want = "" if size is None else f"{size[0]}x{size[1]} (HxW) {str(fmt).split('.')[-1]} "
+            raise SchemaError(f"the {what} has no {want}{name} stream (it has: {have})")
         chosen.append(found[0])
     return tuple(chosen)
 
@@ -114,6 +115,8 @@ def realsense_streams(recording: str | Path | None = None, serial: str | None = 
             "depth_to_color": depth_to_color.tolist(),
             "depth_unit_mm": float(scale) * 1000.0,
         }
+    except RuntimeError as err:  # librealsense's own: a camera busy or not permitted, a damaged recording
+        raise SchemaError(f"cannot read the {what}'s streams: {err}") from None
     finally:
         if recording is not None:
             context.unload_device(str(recording))

@@ -226,7 +226,9 @@ def test_a_camera_is_asked_for_the_dataset_stream_sizes(tmp_path):
         color, depth = _stream_profiles(rs, device, [[h, w], [hd, wd]], "RealSense 1")
         assert (color.height(), color.width(), depth.height(), depth.width()) == (h, w, hd, wd)
         assert (color.format(), depth.format()) == (rs.format.rgb8, rs.format.z16)
-        with pytest.raises(SchemaError, match=rf"RealSense 1 has no 480x640 \(HxW\) colour stream \(it has: {h}x{w}\)"):
+        with pytest.raises(
+            SchemaError, match=rf"RealSense 1 has no 480x640 \(HxW\) rgb8 colour stream \(it has: {h}x{w}\)"
+        ):
             _stream_profiles(rs, device, [[480, 640], [hd, wd]], "RealSense 1")
     finally:
         context.unload_device(str(bag))

@@ -59,7 +59,8 @@ class MetaWorldEnvConfig(EnvConfig):
             raise ConfigError(
                 f"--env.point_features={self.point_features} is read with --env.obs_space only (the policy's space)"
             )
-        colour = [cam for cam in self.cameras if IMAGE_PREFIX in self.sensors]  # refuses a bad space here
+        sensors = self.sensors  # refuses an unknown space or point feature here, before the policy loads
+        colour = [cam for cam in self.cameras if IMAGE_PREFIX in sensors]
         size = (self.image_size, self.image_size, 3)
         self.features = {
             "action": PolicyFeature(FeatureType.ACTION, (ACTION_SIZE,)),
