@@ -319,12 +319,13 @@ class ObservationAdapter(nn.Module):
         (B, N, 3), colours in [-1, 1] (B, N, 3; (B, N, 0) where the points carry none) and where depth is valid
         (B, N)."""
         xyz, rgb, valid = [], [], []
+        # points without colour read no colour frame (`read_sensors`): an empty channel keeps the stages' shapes
+        carry_colour = points_carry_colour(self.config.point_features)
         for cam in self.config.cameras:
             points, cam_valid, (rows, columns) = self._world_points(batch, cam, box)
             xyz.append(points.flatten(1, 2))
             valid.append(cam_valid.flatten(1))
-            # points without colour read no colour frame (`read_sensors`): an empty channel keeps the stages' shapes
-            if not points_carry_colour(self.config.point_features):
+            if not carry_colour:
                 rgb.append(xyz[-1][..., :0])
                 continue
             colour, size = self._rgb(batch, cam), batch[depth_key(cam)].shape[1:3]
