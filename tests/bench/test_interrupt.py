@@ -11,7 +11,7 @@ import pytest
 
 from lerobot_obsbench.bench.diagnostics import LOSS_PATTERN
 from lerobot_obsbench.bench.results import by_kind
-from tests.bench.test_bench_run import comparable, finish, obsbench, one_run_grid, quiet, wait_for
+from tests.support.grid_cli import comparable, finish, obsbench, one_run_grid, quiet, wait_for
 
 pytestmark = pytest.mark.slow
 
@@ -24,11 +24,15 @@ def interrupt(proc) -> str:
 
 
 def test_ctrl_c_during_a_grid_keeps_its_results_and_the_same_command_finishes_it(tmp_path):
-    grid = one_run_grid(tmp_path / "one.yaml", ("steps: 3", "steps: 200"))
+    # the small keypoint encoder's steps, not resnet18's: a run long enough to be interrupted, cheap to finish
+    grid = one_run_grid(
+        tmp_path / "one.yaml",
+        ("steps: 3", "steps: 400"),
+    )
     plain, out = tmp_path / "plain", tmp_path / "out"
     finish("run", str(grid), "--out", str(plain), "--threads", "1")
     proc = obsbench("run", str(grid), "--out", str(out), "--threads", "1", start_new_session=True)
-    # demos recorded and training under way: its first loss line is logged (of 200 steps, one every 4)
+    # demos recorded and training under way: its first loss line is logged (of 400 steps)
     wait_for(lambda: any(LOSS_PATTERN.search(log.read_text()) for log in out.glob("runs/*/train.log")), proc)
     log = interrupt(proc)
     assert proc.returncode == 130, log
@@ -42,7 +46,8 @@ def test_ctrl_c_during_a_grid_keeps_its_results_and_the_same_command_finishes_it
 
 
 def test_ctrl_c_during_demos_keeps_the_recorded_episodes(tmp_path):
-    args = ["demos", "--task", "PushCube-v1", "--episodes", "3", "--image-size", "32"]
+    # interrupted once the first episode is on disk: seven more are a window of seconds for the signal to land in
+    args = ["demos", "--task", "PushCube-v1", "--episodes", "8", "--image-size", "32"]
     plain, out = tmp_path / "plain", tmp_path / "out"
     finish(*args, "--out", str(plain))
     proc = obsbench(*args, "--out", str(out), start_new_session=True)

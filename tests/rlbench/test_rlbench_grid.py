@@ -12,8 +12,8 @@ import pytest
 
 from lerobot_obsbench.bench.results import by_kind
 from lerobot_obsbench.cli import main
-from tests.bench.test_bench_run import ENV, comparable, finish, kill, obsbench, quiet, wait_for
 from tests.support import rlbench_fixtures
+from tests.support.grid_cli import ENV, comparable, finish, kill, obsbench, quiet, wait_for
 from tests.support.paths import FAKE_RLBENCH
 
 pytestmark = pytest.mark.slow
