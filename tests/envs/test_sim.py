@@ -21,7 +21,7 @@ import torch
 
 from lerobot_obsbench import geometry, schema
 from lerobot_obsbench.envs import ObsBenchEnvConfig, TaskError
-from lerobot_obsbench.envs.base_task import TASKS, task_spec
+from lerobot_obsbench.envs.base_task import TASKS, task_spec, to_numpy
 from lerobot_obsbench.envs.maniskill import ObsBenchEnv
 from tests.support.paths import REPO_ROOT as ROOT
 
@@ -379,7 +379,7 @@ class _FirstSteps:
 
     def step(self, slots, actions):
         observations, outcomes = self.envs.step(slots, actions)
-        rows = np.asarray(actions)
+        rows = to_numpy(actions)  # as the envs read them: a device tensor too
         for slot, (reward, *_) in zip(slots, outcomes, strict=True):
             seed = self.seeds[slot]
             if seed not in self.rewards:
