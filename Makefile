@@ -57,7 +57,7 @@ bench: $(STAMP)
 	$(BIN)/python -m benchmarks.bench_eval
 	$(BIN)/python -m benchmarks.bench_demos
 	$(BIN)/python -m benchmarks.bench_experts
-	$(BIN)/python -m benchmarks.bench_compile
+	$(BIN)/python -m benchmarks.bench_step_variants
 	$(BIN)/python -m benchmarks.bench_encoders
 	$(BIN)/python -m benchmarks.bench_recording
 	$(BIN)/python -m benchmarks.bench_latency

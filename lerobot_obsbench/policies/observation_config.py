@@ -161,7 +161,7 @@ class ObservationConfig:
     # centre crop of `random_crop` also at test). Empty: none.
     augment: str = ""
     # Train with the observation encoder compiled by torch.compile (inductor): the same model and weights, fused
-    # kernels (on a CPU a few per cent at most: benchmarks/bench_compile.py, docs/performance.md); evaluation runs
+    # kernels (on a CPU a few per cent at most: benchmarks/bench_step_variants.py, docs/performance.md); evaluation runs
     # it eagerly, so a checkpoint loads and acts without compiling.
     compile_encoder: bool = False
 
