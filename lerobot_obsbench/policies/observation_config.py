@@ -161,8 +161,8 @@ class ObservationConfig:
     # centre crop of `random_crop` also at test). Empty: none.
     augment: str = ""
     # Train with the observation encoder compiled by torch.compile (inductor): the same model and weights, fused
-    # kernels (on a CPU a few per cent at most: benchmarks/bench_step_variants.py, docs/performance.md); evaluation runs
-    # it eagerly, so a checkpoint loads and acts without compiling.
+    # kernels (on a CPU no faster: docs/performance.md); evaluation runs it eagerly, so a checkpoint loads and acts
+    # without compiling.
     compile_encoder: bool = False
 
     # --- Optimiser and schedule (the paper's recipe) ---
