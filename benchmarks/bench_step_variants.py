@@ -25,7 +25,7 @@ from torch import nn
 from benchmarks.bench_train_step import grid_run_policy, prepare, release, train_step
 from benchmarks.common import load_synthetic, write
 from lerobot_obsbench.numeric import number_argument
-from lerobot_obsbench.schema import is_control, space_info
+from lerobot_obsbench.schema import is_control
 
 
 def milliseconds(step) -> float:
@@ -56,8 +56,8 @@ def variants(run, device: torch.device, synthetic) -> tuple[dict, dict]:
     for name in ("eager", "compiled", "channels_last"):
         torch.manual_seed(0)
         built[name] = grid_run_policy(run, device, synthetic, compile_encoder=name == "compiled")
-    if not space_info(run.obs_space).image or not channels_last(built["channels_last"][0]):
-        del built["channels_last"]  # a point or control encoder has no convolution stack to lay out
+    if not channels_last(built["channels_last"][0]):
+        del built["channels_last"]  # a point or control encoder has no 2-D convolution stack to lay out
     batch = built["eager"][1]
     return {name: policy for name, (policy, _) in built.items()}, batch
 
