@@ -28,9 +28,22 @@
    of the plugin's own refusals (an `ObsBenchError`) is raised as draccus' own `DecodingError` carrying that
    message: LeRobot prints it as the one error line (`error: `policy`: ...`). Other failures are left as they are.
 
-Fixes 1 and 3 replace LeRobot functions for every process that imports the plugin (LeRobot's plugin discovery imports it
-into every `lerobot-*` command), so `apply()` patches only the LeRobot version it was written and tested for
-(`LEROBOT_VERSION`); on any other it warns and leaves LeRobot as it is.
+5. A resumed run that trains what the uninterrupted one trains. LeRobot saves the torch, NumPy and Python RNG
+   states with each checkpoint and restores them on `--resume`, and positions its `EpisodeAwareSampler` at the
+   step's epoch and offset (`compute_sampler_state`). Two things undo that in 0.6.1: accelerate's `DataLoaderShard`
+   sets the sampler's epoch to its own iteration count, which a new process starts at 0, so a run resumed after
+   its first epoch replays the first epoch's order; and a DataLoader draws its base seed from torch's global RNG
+   when its iterator is made — an uninterrupted run made it at the start of the epoch, before the checkpoint
+   saved that RNG, a run resumed mid-epoch makes it right after restoring it, so every later random draw (dropout,
+   the VAE's sample, point sampling, diffusion noise) is shifted by one. lerobot-train's `cycle` is replaced by one
+   that, in a resumed run (`compute_sampler_state`, called only then, noted as it is computed), first sets the
+   loader's epoch to the resumed one and, when the run resumes inside an epoch, fetches its first batch with
+   torch's CPU RNG forked. A run resumed at an epoch boundary draws there as the uninterrupted run does; a run
+   that is not resumed is trained exactly as LeRobot trains it.
+
+Fixes 1, 3, 4 and 5 replace LeRobot (or draccus) functions for every process that imports the plugin (LeRobot's
+plugin discovery imports it into every `lerobot-*` command), so `apply()` patches only the LeRobot version they were
+written and tested for (`LEROBOT_VERSION`); on any other it warns and leaves LeRobot as it is.
 
 `stock_loading()` restores LeRobot's behaviour for the equivalence test and the loading benchmark. Every replaced
 attribute is a `Patch` record in `PATCHES` (`dataset_reads` adds its own): the start-up line that lerobot-train and
@@ -58,6 +71,7 @@ from lerobot.datasets import aggregate, dataset_tools, dataset_writer, video_uti
 from lerobot.datasets.dataset_reader import DatasetReader
 from lerobot.datasets.io_utils import pil_to_chw_tensor
 from lerobot.datasets.language import LANGUAGE_COLUMNS
+from lerobot.scripts import lerobot_train
 
 from lerobot_obsbench.errors import ObsBenchError
 
@@ -76,7 +90,7 @@ class Patch:
     attribute: str
     fix: str  # the fix it is part of, as the start-up line names it
     retire: str  # the upstream change after which the plugin can drop it
-    versions: str = LEROBOT_VERSION  # the LeRobot versions it is applied on ("any": every version)
+    versions: str = LEROBOT_VERSION  # the LeRobot version it is applied on
     when: str = "on import"  # when it is replaced: on importing the plugin, or inside which of the plugin's calls
     stock: object = field(init=False, repr=False)  # the attribute as LeRobot defines it
 
@@ -110,11 +124,17 @@ FORMATTER_PATCHES = (  # fix 1
 # fix 3: LeRobot's video encoder under each name it is called by (each module holds its own)
 ENCODER_PATCHES = tuple(Patch(m, "encode_video_frames", *ENCODER) for m in (video_utils, dataset_writer, dataset_tools))
 PARSE = ("config refusals keep their reasons", "a parse error printed with its cause")
-PARSE_PATCH = Patch(draccus, "parse", *PARSE, versions="any")
+PARSE_PATCH = Patch(draccus, "parse", *PARSE)
+RESUME = (
+    "a resumed run trains what the uninterrupted run trains",
+    "a resume that keeps the loader's epoch and makes its first iterator without drawing from the restored RNG",
+)
+RESUME_PATCHES = (Patch(lerobot_train, "compute_sampler_state", *RESUME), Patch(lerobot_train, "cycle", *RESUME))
 register(
     *FORMATTER_PATCHES,
     *ENCODER_PATCHES,
     PARSE_PATCH,  # fix 4
+    *RESUME_PATCHES,  # fix 5
     Patch(  # fix 2
         aggregate,
         "aggregate_data",
@@ -127,6 +147,7 @@ register(
 _STOCK = {"query": FORMATTER_PATCHES[0].stock, "load": FORMATTER_PATCHES[1].stock}
 _STOCK_ENCODERS = {patch.owner: patch.stock for patch in ENCODER_PATCHES}
 _STOCK_PARSE = PARSE_PATCH.stock
+_STOCK_SAMPLER_STATE, _STOCK_CYCLE = (patch.stock for patch in RESUME_PATCHES)
 
 
 class LeRobotTorchFormatter(TorchFormatter):
@@ -242,19 +263,53 @@ def parse_with_reasons(*args, **kwargs):
         raise draccus.utils.DecodingError(getattr(error, "key_path", ()), str(refusal)) from refusal
 
 
+class _Resume:
+    """The sampler state `sampler_state_noting_resume` computed for this process's resumed run, until its first
+    batch is fetched (fix 5)."""
+
+    state: dict | None = None
+
+
+@functools.wraps(_STOCK_SAMPLER_STATE)
+def sampler_state_noting_resume(*args, **kwargs) -> dict:
+    """LeRobot's `compute_sampler_state` (called only when a run resumes), noting the epoch and offset it resumes
+    at (fix 5)."""
+    _Resume.state = _STOCK_SAMPLER_STATE(*args, **kwargs)
+    return _Resume.state
+
+
+@functools.wraps(_STOCK_CYCLE)
+def cycle_keeping_restored_rng(iterable):
+    """LeRobot's `cycle`; in a resumed run, the loader is first set to the resumed epoch (accelerate's loader would
+    set its sampler back to epoch 0) and, inside an epoch, the first batch (whose fetch makes the DataLoader's
+    iterator, drawing its base seed) is fetched with torch's CPU RNG forked, as the uninterrupted run fetched it
+    before its checkpoint saved that state (fix 5)."""
+    state, _Resume.state = _Resume.state, None
+    if state is not None and hasattr(iterable, "set_epoch"):
+        iterable.set_epoch(state["epoch"])
+    batches = _STOCK_CYCLE(iterable)
+    if state is not None and state["start_index"] > 0:
+        with torch.random.fork_rng(devices=[]):
+            first = next(batches)
+        yield first
+    yield from batches
+
+
 def apply(lerobot_version: str | None = None) -> bool:
-    """Patch LeRobot if it is the version the patches were written for; returns whether it patched. The parser's
-    reasons (fix 4) are given on any version: that wrapper only rewrites the message of a failure."""
-    draccus.parse = parse_with_reasons
+    """Patch LeRobot if it is the version the patches were written for; returns whether it patched."""
     version = lerobot_version or metadata.version("lerobot")
     if version != LEROBOT_VERSION:
         logger.warning(
-            "lerobot_obsbench: LeRobot %s is installed, the dataset-loading fix was written for %s; "
-            "leaving LeRobot unpatched (loading depth datasets may be slow).",
+            "lerobot_obsbench: LeRobot %s is installed, the plugin's fixes to LeRobot were written for %s; "
+            "leaving LeRobot unpatched (loading depth datasets may be slow, a resumed run may train other weights "
+            "than an uninterrupted one, and a refused policy config is printed without its reason).",
             version,
             LEROBOT_VERSION,
         )
         return False
+    draccus.parse = parse_with_reasons
+    lerobot_train.compute_sampler_state = sampler_state_noting_resume
+    lerobot_train.cycle = cycle_keeping_restored_rng
     _set(query_hf_dataset_by_column, load_hf_dataset_fast)
     for module, encode in _STOCK_ENCODERS.items():  # wrapped from the stock one, so applying again wraps once
         module.encode_video_frames = keeping_scheduling(encode)
