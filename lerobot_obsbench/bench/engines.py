@@ -70,7 +70,7 @@ class RayEngine:
     name = "ray"
     slots = None  # every ready unit goes to the cluster, which places each by the resources it asks for
 
-    def __init__(self, address: str | None = None, **init_kwargs):
+    def __init__(self, address: str | None = None, env: dict[str, str] | None = None, **init_kwargs):
         try:
             import ray
         except ImportError as err:
@@ -81,9 +81,14 @@ class RayEngine:
                 init_kwargs = {"_node_ip_address": "127.0.0.1", "include_dashboard": False, **init_kwargs}
             ray.init(address=address, log_to_driver=False, **init_kwargs)
         self._run_job = ray.remote(run_job)
+        # each unit's worker process starts with these variables (the kernel pins), as the local pool's inherit them
+        self.runtime_env = {"env_vars": dict(env)} if env else None
 
     def submit(self, job: Job):
-        return self._run_job.options(num_cpus=job.cpus, num_gpus=job.gpus, max_retries=0).remote(job)
+        options = {"num_cpus": job.cpus, "num_gpus": job.gpus, "max_retries": 0}
+        if self.runtime_env:
+            options["runtime_env"] = self.runtime_env
+        return self._run_job.options(**options).remote(job)
 
     def wait(self, handles: list, timeout: float) -> list:
         done, _ = self.ray.wait(handles, num_returns=1, timeout=timeout)
@@ -99,9 +104,10 @@ class RayEngine:
         pass  # the cluster outlives the driver; a local instance stops with this process
 
 
-def make_engine(name: str, workers: int = 1, address: str | None = None):
+def make_engine(name: str, workers: int = 1, address: str | None = None, env: dict[str, str] | None = None):
+    """`env`: environment variables every unit runs with (the local pool's workers inherit the driver's)."""
     if name == "local":
         return LocalEngine(workers)
     if name == "ray":
-        return RayEngine(address)
+        return RayEngine(address, env=env)
     raise UsageError(f"Unknown engine {name!r}; choose one of {', '.join(ENGINES)}")

@@ -12,6 +12,7 @@ Order of work per run: train -> validation evaluations of every checkpoint (when
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import time
@@ -29,12 +30,14 @@ from lerobot_obsbench.bench.cost import (
 from lerobot_obsbench.bench.engines import make_engine
 from lerobot_obsbench.bench.grid import Grid
 from lerobot_obsbench.bench.jobs import DemoJob, EvalJob, Job, TrainJob, WorkQueue
+from lerobot_obsbench.bench.machine import CapabilityError, default_capability, native_capability, pin_environment
 from lerobot_obsbench.bench.results import RESULTS_FILE, append_result, by_kind, read_results
 from lerobot_obsbench.bench.specs import BUDGET_UNITS, EvalSpec, GridError, RunSpec
 from lerobot_obsbench.bench.units import demo_dir, demos_recorded, evaluation_progress, run_dir, training_progress
 from lerobot_obsbench.envs.base_task import TASKS, asset_help, missing_assets
 from lerobot_obsbench.envs.catalog import task_record
 from lerobot_obsbench.envs.vector import default_batch_size
+from lerobot_obsbench.errors import UsageError
 from lerobot_obsbench.locks import exclusive_output
 from lerobot_obsbench.rlbench.paper_tasks import grid_task_name
 from lerobot_obsbench.rlbench.preflight import data_problems, simulator_problem
@@ -482,6 +485,39 @@ def check_tasks(grid: Grid, dry_run: bool = False, echo=print) -> None:
             raise GridError(f"{grid.name}: " + ". Also: ".join(problems))
 
 
+def kernel_pins(capability: str) -> dict[str, str]:
+    """The environment pinning `capability`'s CPU kernels (`machine.pin_environment`), refused in one line where
+    this machine cannot run them."""
+    try:
+        return pin_environment(capability)
+    except CapabilityError as err:
+        raise UsageError(str(err)) from None
+
+
+def pin_line(pins: dict[str, str]) -> str:
+    if not pins:
+        return f"CPU kernels: this machine's own ({native_capability()}), not pinned: the records name them"
+    return (
+        f"CPU kernels pinned to {pins['ATEN_CPU_CAPABILITY']} ({', '.join(f'{k}={v}' for k, v in pins.items())}; "
+        f"this machine's best: {native_capability()}), so that the runs' numbers do not depend on the processor"
+    )
+
+
+@contextlib.contextmanager
+def environment(variables: dict[str, str]):
+    """`variables` set in this process's environment (inherited by the processes it starts) while inside."""
+    before = {name: os.environ.get(name) for name in variables}
+    os.environ.update(variables)
+    try:
+        yield
+    finally:
+        for name, value in before.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+
+
 def run_grid(
     grid: Grid,
     out: Path,
@@ -494,14 +530,18 @@ def run_grid(
     threads: int | None = None,
     progress_every: float = 30.0,
     echo=print,
+    cpu_capability: str | None = None,
 ) -> int:
     """Run every unit of `grid` that has no record yet; returns the number of failed units.
 
     `threads`: CPU threads per unit (None: the machine's cores shared by the local workers; Ray: 1 per CPU
     the unit asks for). `loader_workers`: LeRobot's DataLoader workers per training run (0 is fastest on a
-    2-core CPU, where a worker competes with training)."""
+    2-core CPU, where a worker competes with training). `cpu_capability`: the CPU kernels every unit runs with
+    (`machine.py`; None: the default pin)."""
     out = Path(out)
     check_tasks(grid, dry_run, echo)
+    pins = kernel_pins(cpu_capability or default_capability())
+    echo(pin_line(pins))
     if dry_run:
         print_plan(grid, load_work(grid, out), out, device, echo=echo, workers=workers)
         return 0
@@ -511,14 +551,15 @@ def run_grid(
     if threads is None and engine == "local":
         threads = max(1, (os.cpu_count() or 1) // max(workers, 1))
     eval_cores = None if whole_machine else (threads or 1)
-    with exclusive_output(out, f"obsbench run {grid.name}"):  # a second runner on `out` is refused
+    # a second runner on `out` is refused; the units (pool workers, lerobot-train) inherit the kernel pins
+    with exclusive_output(out, f"obsbench run {grid.name}"), environment(pins):
         work = load_work(grid, out)
         print_plan(grid, work, out, device, echo=echo, workers=workers)
         driver = Driver(
             grid,
             work,
             out,
-            make_engine(engine, workers, address),
+            make_engine(engine, workers, address, env=pins),
             device=device,
             loader_workers=loader_workers,
             threads=threads,

@@ -35,6 +35,7 @@ from datetime import UTC, datetime
 from importlib import metadata
 from pathlib import Path
 
+from lerobot_obsbench.bench.machine import facts_of_process, machine_facts
 from lerobot_obsbench.bench.specs import EvalSpec, RunSpec
 from lerobot_obsbench.errors import ObsBenchError
 from lerobot_obsbench.rlbench.paper_tasks import grid_task_name
@@ -176,6 +177,16 @@ def resume_command(output_dir: Path) -> list[str]:
     return [str(Path(sys.executable).parent / "lerobot-train"), f"--config_path={config}", "--resume=true"]
 
 
+def resumes_exactly() -> bool:
+    """Whether lerobot-train here resumes a run as the uninterrupted run goes on: the plugin's fix is in place
+    (it is applied on the LeRobot version it was written for)."""
+    from lerobot.scripts import lerobot_train
+
+    from lerobot_obsbench import patches
+
+    return lerobot_train.cycle is patches.cycle_keeping_restored_rng
+
+
 def saved_checkpoints(output_dir: Path) -> dict[int, Path]:
     """step -> pretrained_model directory of every complete checkpoint lerobot-train saved."""
     found = {}
@@ -246,6 +257,7 @@ def train_unit(
     start = time.time()
     progress = {"steps": steps, "resumed_from": resumed_from or 0, "started": start}
     (root / "progress.json").write_text(json.dumps(progress) + "\n")
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", **thread_env(threads)}
     with open(root / "train.log", "a") as log:
         log.write(f"\n=== {now()} {'resuming at step ' + str(resumed_from) if resumed_from else 'starting'} ===\n")
         log.flush()
@@ -255,7 +267,7 @@ def train_unit(
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,
             preexec_fn=die_with_parent,
-            env={**os.environ, "HF_HUB_OFFLINE": "1", **thread_env(threads)},
+            env=env,
         )
     saved = saved_checkpoints(output_dir)
     if done.returncode != 0 or not set(kept) <= set(saved):
@@ -281,10 +293,13 @@ def train_unit(
         "checkpoint": str(saved[steps]),
         "checkpoints": {str(s): str(p) for s, p in saved.items()},
         "resumed_from": resumed_from,
+        # whether the resume continued the uninterrupted run's data order and random stream (patches.py, fix 5)
+        **({"resumed_exactly": resumes_exactly()} if resumed_from else {}),
         "device": device,
         "timings": {"train_s": train_s},
         "diagnostics": run_diagnostics(run, root, steps, Path(saved[steps]), Path(dataset), held_out, device),
         "versions": versions(),
+        "machine": facts_of_process(env),  # those of the lerobot-train it ran: same machine, same environment
         "finished_at": now(),
     }
 
@@ -391,6 +406,7 @@ def eval_unit(
         "device": device,
         **{k: result[k] for k in ("batch_size", "sim_backend") if k in result},  # (RLBench has neither)
         **{k: result[k] for k in keys},
+        "machine": machine_facts(),
         "finished_at": now(),
     }
 

@@ -24,6 +24,7 @@ INTERRUPTED = (
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from lerobot_obsbench.bench.engines import ENGINES
     from lerobot_obsbench.bench.grid import preset_grids
+    from lerobot_obsbench.bench.machine import CAPABILITY_CHOICES, default_capability
 
     p.add_argument("grid", help=f"grid YAML file, or the name of a preset grid: {', '.join(preset_grids())}")
     p.add_argument("--out", type=Path, default=None, help="output directory (default outputs/bench/<grid name>)")
@@ -69,6 +70,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--obs-spaces", nargs="+", default=None, metavar="SPACE", help="run only these of the grid's obs_spaces"
     )
+    p.add_argument(
+        "--cpu-capability",
+        choices=CAPABILITY_CHOICES,
+        default=default_capability(),
+        help="the CPU kernels every unit runs with (torch, MKL and oneDNN pinned to them), so that a run's numbers do "
+        f"not depend on the processor it ran on (default: {default_capability()}; native: this machine's best, "
+        "unpinned); the records name them",
+    )
     p.add_argument("--dry-run", action="store_true", help="print the runs still to do and a rough cost; run nothing")
     p.add_argument(
         "--rlbench-data", default=None, help="RLBench grids: PerAct's data (DIR/train|val|test/<task>), for the grid's"
@@ -100,6 +109,7 @@ def run(args: argparse.Namespace) -> int:
         loader_workers=loader_workers,
         threads=args.threads,
         progress_every=args.progress_every,
+        cpu_capability=args.cpu_capability,
     )
     if failures:
         print(f"{failures} unit(s) of work failed (see the messages above); rerun the same command to retry them.")

@@ -1,7 +1,8 @@
 """End to end on the simulator (slow): one run of a tiny grid, trained with stock lerobot-train and evaluated.
 
-- a run killed mid-training resumes from its last checkpoint (LeRobot's training state); a run killed
-  mid-evaluation keeps its checkpoint;
+- a run killed mid-training resumes from its last checkpoint (LeRobot's training state) and trains the weights,
+  and plays the episodes, of the same run trained straight through; a run killed mid-evaluation keeps its
+  checkpoint; the records name the machine facts and CPU kernel pin they were made under;
 - the best checkpoint is chosen on the validation seeds;
 - a run records its diagnostics on held-out demonstrations, and the report shows them;
 - the same run trains bit-identical weights on the same machine;
@@ -12,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import platform
 import re
 from pathlib import Path
 
@@ -34,7 +36,7 @@ def evaluated_episodes(out: Path) -> int:
     return done
 
 
-def test_killed_training_resumes_from_its_checkpoint_and_evaluation_keeps_it(tmp_path):
+def test_killed_training_resumes_to_the_uninterrupted_run_and_evaluation_keeps_it(tmp_path):
     # rgb: the kills need a run that renders (an evaluation long enough to be killed in)
     grid = one_run_grid(
         tmp_path / "one.yaml",
@@ -66,6 +68,23 @@ def test_killed_training_resumes_from_its_checkpoint_and_evaluation_keeps_it(tmp
     log = finish("run", str(grid), "--out", str(out))
     assert "1 already trained, 0 to train" in log and "trained " not in log
     assert len(by_kind(quiet(out / "results.jsonl"), "eval")) == 2
+    # the same grid from nothing, never killed: the same weights, byte for byte, and the same episodes
+    straight = tmp_path / "straight"
+    finish("run", str(grid), "--out", str(straight))
+    (uninterrupted,) = by_kind(quiet(straight / "results.jsonl"), "train")
+    assert uninterrupted["resumed_from"] is None and train["resumed_exactly"] is True
+    weights = [Path(r["checkpoint"], "model.safetensors").read_bytes() for r in (train, uninterrupted)]
+    assert weights[0] == weights[1]
+    episodes = [
+        {r["eval_id"]: r["per_seed"] for r in by_kind(quiet(o / "results.jsonl"), "eval")} for o in (out, straight)
+    ]
+    assert episodes[0] == episodes[1]
+    # every record names the facts it was made under, the kernel pin among them (x86-64: AVX2 by default)
+    for record in quiet(straight / "results.jsonl"):
+        facts = record["machine"]
+        assert {"cpu_capability", "cpu", "torch", "threads"} <= set(facts) and facts["threads"] >= 1
+        if platform.machine() == "x86_64":
+            assert facts["cpu_capability"] == "AVX2" and facts["pins"]["ATEN_CPU_CAPABILITY"] == "avx2"
 
 
 def test_best_checkpoint_is_chosen_on_the_validation_seeds(tmp_path):

@@ -86,10 +86,15 @@ def record(run_id, task, space, successes, episodes=10, seed=0, demos=10, lr=1e-
     }
 
 
+# the machine facts every record of `stored` carries unless its view names others (`machine.machine_facts`)
+MACHINE = {"cpu_capability": "AVX2", "cpu": "a CPU", "torch": "2.11.0 (70d99e998b49)", "threads": 1, "pins": {}}
+
+
 def stored(*views) -> list[dict]:
     """The results store's train and eval records (what `obsbench run` writes) of run views."""
     out = []
     for v in views:
+        machine = v.get("machine", MACHINE)
         out.append(
             {
                 "kind": "train",
@@ -98,7 +103,9 @@ def stored(*views) -> list[dict]:
                 "method": v["method"],
                 "task": v["task"],
                 "checkpoint": f"runs/{v['run_id']}/last",
+                **({"machine": machine} if machine is not None else {}),
                 **({"diagnostics": v["diagnostics"]} if "diagnostics" in v else {}),
+                **{k: v[k] for k in ("resumed_from", "resumed_exactly") if k in v},
             }
         )
         for name, summary in v["evaluations"].items():
@@ -110,10 +117,35 @@ def stored(*views) -> list[dict]:
                     "checkpoint": "last",
                     "split": "test",
                     "perturbation": name,
+                    **({"machine": machine} if machine is not None else {}),
                     **summary,
                 }
             )
     return out
+
+
+def test_the_report_says_when_it_pools_runs_made_under_other_machine_facts_or_resumed_inexactly():
+    """Runs made under one set of facts pool silently; a run made under other CPU kernels is named with the count of
+    each; records without facts (written before records had them) are said to be unrecorded; a run resumed by
+    LeRobot's own resume (before the plugin's fix) is named, one resumed exactly is not."""
+    same = [record(f"r{seed}", "T", "rgb", 5, seed=seed) for seed in range(3)]
+    assert build_report(stored(*same))["warnings"] == []
+    other = {**record("r3", "T", "rgb", 5, seed=3), "machine": {**MACHINE, "cpu_capability": "AVX512"}}
+    report = build_report(stored(*same, other))
+    (warning,) = report["warnings"]
+    assert "3 run(s) under AVX2, a CPU" in warning and "1 run(s) under AVX512, a CPU" in warning
+    assert sorted(report["checks"]["machines"].values()) == [1, 3]
+    unrecorded = [{**r, "machine": None} for r in same]
+    assert "were not recorded" in build_report(stored(*unrecorded))["warnings"][0]
+    resumed = [
+        {**same[0], "resumed_from": 3000},
+        {**same[1], "resumed_from": 2000, "resumed_exactly": True},
+        same[2],
+    ]
+    report = build_report(stored(*resumed))
+    (warning,) = report["warnings"]
+    assert "1 run(s) were resumed" in warning and "seed 0 (at step 3000)" in warning and "seed 1" not in warning
+    assert report["checks"]["inexact_resumes"] == ["T obs_act/rgb/e seed 0 (at step 3000)"]
 
 
 def test_results_store_reports_corrupted_lines_and_never_merges_lines(tmp_path):

@@ -58,6 +58,7 @@ RESULT_SECTIONS = (
     tables.per_seed_section,
     tables.diagnostic_section,
     tables.agreement_section,
+    tables.provenance_section,
 )
 PUBLISHED_SECTIONS = (tables.published_section, tables.side_by_side_section)
 # The figures of a results store, in the order the report shows them.

@@ -47,6 +47,9 @@ def run_views(records: list[dict], checkpoint: str = "best") -> list[dict]:
                 "evaluations": tests[r["run_id"]][shown],
                 "diagnostics": r.get("diagnostics", {}),
                 "curve": _curve(tests[r["run_id"]], r.get("train_steps")),
+                "machine": r.get("machine"),
+                "resumed_from": r.get("resumed_from"),
+                "resumed_exactly": r.get("resumed_exactly", False),
             }
         )
     return views

@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from lerobot_obsbench.bench import aggregates
+from lerobot_obsbench.bench.machine import fingerprint
 from lerobot_obsbench.bench.report.comparisons import agreements, beats_blind, control_brackets
 from lerobot_obsbench.bench.report.data import ReportData
 from lerobot_obsbench.bench.report.published import paper_row
@@ -227,6 +228,49 @@ def curve_section(data: ReportData) -> Section | None:
                 for task, row in data.curves.items()
             }
         },
+    )
+
+
+def provenance_section(data: ReportData) -> Section:
+    """No table: notes on runs whose numbers another machine or an uninterrupted run would not repeat — runs
+    pooled from processes with other machine facts (`machine.fingerprint`: CPU kernels, processor, library
+    builds, threads), and runs resumed by a version whose resume did not continue the uninterrupted run."""
+    machines: dict[str, list[str]] = {}
+    for label, r in data.labelled_runs:
+        records = [r["machine"], *(e.get("machine") for e in r["evaluations"].values())]
+        facts = " + ".join(sorted({fingerprint(f) for f in records}))
+        machines.setdefault(facts, []).append(f"{r['task']} {label} seed {r['config']['seed']}")
+    warnings = []
+    if list(machines) == [fingerprint(None)]:
+        warnings.append(
+            "The machine facts of these runs were not recorded (their records predate them), so whether they were "
+            "made under the same CPU kernels and library builds cannot be told from the results."
+        )
+    elif len(machines) > 1:
+        counts = "; ".join(f"{len(runs)} run(s) under {facts}" for facts, runs in machines.items())
+        warnings.append(
+            "These results pool runs trained or evaluated on machines with different facts, and the same run gives "
+            f"other numbers under other CPU kernels or library builds: {counts} (each run's facts are in its "
+            "records' `machine` field)."
+        )
+    inexact = [
+        f"{r['task']} {label} seed {r['config']['seed']} (at step {r['resumed_from']})"
+        for label, r in data.labelled_runs
+        if r["resumed_from"] and not r["resumed_exactly"]
+    ]
+    if inexact:
+        warnings.append(
+            f"{len(inexact)} run(s) were resumed from a checkpoint by a version whose resume did not continue the "
+            "uninterrupted run (LeRobot 0.6.1's own resume: its data order and random stream part there), so the "
+            f"same command run from nothing trains other weights: {', '.join(inexact)}."
+        )
+    return Section(
+        "Provenance",
+        [],
+        [],
+        checks={"machines": {facts: len(runs) for facts, runs in machines.items()}, "inexact_resumes": inexact},
+        warnings=warnings,
+        shown=False,
     )
 
 
