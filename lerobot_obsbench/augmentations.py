@@ -6,13 +6,16 @@ adapter runs it inside the policy's forward, so stock `lerobot-train` trains wit
 Diffusion Policy does. Randomness comes from torch's generator on the tensors' device, which lerobot-train seeds,
 so the same training seed gives the same augmented batches.
 
-Three kinds, by where the adapter applies them:
-- `colour`: each camera's colour image (B, 3, H, W) in [0, 1], before it is normalised;
+Four kinds, by where the adapter applies them:
 - `image`: the space's input images (B, n_cam, C, H, W), every channel of a camera moved alike (colour, depth and
   xyz stay aligned), each camera and sample drawn on its own; the frame size is kept;
+- `colour`: each camera's colour image (B, 3, H, W) in [0, 1], before it is normalised;
 - `points`: the fused cloud in the world frame, before the crop box, so the box keeps what it would keep of a
   moved scene. Each also states how far it can move a point (`reach`), so that the adapter unprojects every pixel
-  that can land in the box after it.
+  that can land in the box after it;
+- `depth`: each camera's depth image as read (B, H, W, integer millimetres, 0 = none), before anything is built
+  from it, so every space built from depth (depth, rgbd, pointmap, point clouds) sees it alike: `depth_noise_L`,
+  the stereo sensor model of `lerobot_obsbench/depth_noise.py` at level L (the `depth_noise:L` perturbation's).
 
 Magnitudes are the sources' where they have one (DrQ's pad of 4 pixels at 84², Diffusion Policy's 90% crop),
 scaled to the frame; the point transforms are small (a few centimetres, a few degrees) because the actions are
@@ -29,15 +32,21 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from lerobot_obsbench.depth_noise import noisy_depth
 from lerobot_obsbench.errors import ObsBenchError
-from lerobot_obsbench.schema import Space, available_spaces, space_info
+from lerobot_obsbench.schema import DEPTH_PREFIX, Space, available_spaces, space_info
 
-# What each kind of transform acts on, asked of a space's record: the colour of its images, its images, its cloud
-# (a fused space's parts give it theirs: rgb+pointcloud takes image and point transforms).
+# What each kind of transform acts on, asked of a space's record: its images, the colour of its images, its cloud,
+# the depth it is built from (a fused space's parts give it theirs: rgb+pointcloud takes image and point transforms).
+# A normalised recipe lists its names in this order of kinds: the adapter applies each kind at a point of its own
+# (images after normalisation, colour before, points before the crop box, depth before anything), so only the order
+# within a kind changes what trains; images before colour is how the grids' recipes are written
+# (random_shift+colour_jitter), so their ids stay.
 KINDS: dict[str, Callable[[Space], bool]] = {
-    "colour": lambda space: space.colour,
     "image": lambda space: space.image,
+    "colour": lambda space: space.colour,
     "points": lambda space: space.points,
+    "depth": lambda space: DEPTH_PREFIX in space.sensors,
 }
 # DrQ pads 84-pixel frames by 4; other sizes are padded in proportion (3 pixels at 64²).
 SHIFT_FRACTION = 4 / 84
@@ -128,10 +137,7 @@ def parse_augment(recipe: str, obs_space: str) -> tuple[str, ...]:
     return names
 
 
-# The order of a normalised recipe's names by kind. The adapter applies each kind at a point of its own (colour
-# before normalisation, images after, points before the crop box), so only the order within a kind changes what
-# trains; images before colour is how the grids' recipes are written (random_shift+colour_jitter), so their ids stay.
-RECIPE_KIND_ORDER = ("image", "colour", "points")
+RECIPE_KIND_ORDER = tuple(KINDS)
 
 
 def normalised_recipe(recipe: str, space: str) -> str:
@@ -153,6 +159,12 @@ class Augmenter(nn.Module):
         for info in self.by_kind["colour"] if self.training else ():
             rgb = info.apply(rgb)
         return rgb
+
+    def depth(self, depth_mm: Tensor, fx: Tensor) -> Tensor:
+        """`depth_mm` (B, H, W) integer millimetres of a camera whose focal length is `fx` (B,) pixels."""
+        for info in self.by_kind["depth"] if self.training else ():
+            depth_mm = info.apply(depth_mm, fx)
+        return depth_mm
 
     def image(self, images: Tensor) -> Tensor:
         for info in self.by_kind["image"]:
@@ -243,6 +255,25 @@ def colour_jitter(rgb: Tensor) -> Tensor:
     grey = (out * out.new_tensor([0.299, 0.587, 0.114]).view(1, 3, 1, 1)).sum(1, keepdim=True)
     out = (out - grey) * _factor(n, rgb) + grey
     return out.clamp(0, 1)
+
+
+# ---- depth (as read, before anything is built from it) -------------------------------------------------------------
+
+
+def _depth_noise(level: int) -> Callable[[Tensor, Tensor], Tensor]:
+    def apply(depth_mm: Tensor, fx: Tensor) -> Tensor:
+        return noisy_depth(depth_mm, fx, level)
+
+    return apply
+
+
+for _level in (1, 2):
+    register_augmentation(
+        f"depth_noise_{_level}",
+        "depth",
+        f"a stereo depth camera's noise at level {_level} (the depth_noise:{_level} perturbation): error growing with "
+        "the squared distance, holes beside near edges and at random, millimetre steps",
+    )(_depth_noise(_level))
 
 
 # ---- points (world frame, before the crop box) --------------------------------------------------------------------

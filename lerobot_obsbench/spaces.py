@@ -197,7 +197,10 @@ class ObservationAdapter(nn.Module):
             )
         if d.dim() != 4 or d.shape[-1] != 1:
             raise SchemaError(f"{key}: expected shape (B, H, W, 1) (channel-last, one channel), got {tuple(d.shape)}.")
-        return d[..., 0].float() / 1000.0
+        d = d[..., 0]
+        if self.augment.training and self.augment.by_kind["depth"]:
+            d = self.augment.depth(d, _require(batch, intrinsics_key(cam))[..., 0, 0].float())
+        return d.float() / 1000.0
 
     def _camera(self, batch: dict, cam: str) -> tuple[Tensor, Tensor]:
         k_key, t_key = intrinsics_key(cam), cam2world_key(cam)

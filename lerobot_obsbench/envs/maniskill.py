@@ -37,9 +37,12 @@ from lerobot_obsbench.envs.base_task import (
     to_numpy,
 )
 from lerobot_obsbench.envs.perturbations import (
+    MANISKILL_KINDS,
+    DepthNoiser,
     Perturbation,
     apply_scene_perturbation,
     camera_overrides,
+    check_supported,
     parse_perturbation,
 )
 from lerobot_obsbench.errors import ConfigError, ObsBenchError, UsageError
@@ -271,6 +274,7 @@ class ObsBenchEnv(gym.Env):
         self.task_description = spec.description
         self._next_seed = seed
         self.perturbation = check_perturbation(parse_perturbation(perturbation), num_envs)
+        check_supported(self.perturbation, MANISKILL_KINDS, "ManiSkill")
         configs = task_sensor_configs(spec, image_size)
         if self.perturbation and self.perturbation.kind == "noise":
             use_ray_tracing(int(self.perturbation.scalar), configs)
@@ -282,6 +286,8 @@ class ObsBenchEnv(gym.Env):
             apply_scene_perturbation(self._env.unwrapped, self.perturbation)
         self.unwrapped_ms = self._env.unwrapped
         self.device = self.unwrapped_ms.device  # where reset_all / step_all keep their tensors
+        noisy = self.perturbation is not None and self.perturbation.kind == "depth_noise"
+        self._depth_noise = DepthNoiser(self.perturbation, num_envs, self.device) if noisy else None
         self.action_space = gym.spaces.Box(-1.0, 1.0, self.unwrapped_ms.single_action_space.shape, np.float32)
         self.observation_space = observation_space(spec, self.cameras, image_size)
         self._milestones: dict[str, bool] = {}
@@ -372,6 +378,8 @@ class ObsBenchEnv(gym.Env):
         if self.spec_.goal:
             goal = [obs["extra"][k].reshape(self.num_envs, -1) for k in self.spec_.goal]
             frames[ENV_STATE_KEY] = torch.cat(goal, dim=1).float()
+        if self._depth_noise is not None:
+            self._depth_noise.apply(frames, self.cameras)
         return frames
 
     def schema_frame(self, obs: dict) -> dict[str, np.ndarray]:
@@ -400,6 +408,8 @@ class ObsBenchEnv(gym.Env):
         if seed is not None and len(seed) != self.num_envs:
             raise ConfigError(f"reset_all needs one seed per env ({self.num_envs}); got {len(seed)}")
         obs, info = self._env.reset(seed=seed, options=options)
+        if self._depth_noise is not None:
+            self._depth_noise.reset(seed or [None] * self.num_envs)
         rebuilt = self._drop_unread_cameras()  # ManiSkill's observation drew the cameras it rebuilt
         if self.spec_.initialize(self.unwrapped_ms) or rebuilt:
             obs = self.unwrapped_ms.get_obs()

@@ -11,13 +11,14 @@ import torch
 
 from lerobot_obsbench import augmentations as aug
 from lerobot_obsbench.augmentations import AugmentationError, Augmenter, parse_augment
-from lerobot_obsbench.schema import available_spaces, reads_images, reads_points
+from lerobot_obsbench.schema import DEPTH_PREFIX, available_spaces, reads_images, reads_points, space_info
 from lerobot_obsbench.spaces import AdapterConfig, ObservationAdapter
 from tests.support.helpers import CAM, frame_batch
 
 BOX = (-0.3, 0.3, -0.2, 0.2, 0.01, 0.25)
 IMAGE_AUGS = aug.available_augmentations("rgb")
-POINT_AUGS = aug.available_augmentations("pointcloud")
+POINT_AUGS = [n for n in aug.available_augmentations("pointcloud") if aug.augmentation_info(n).kind == "points"]
+DEPTH_AUGS = [n for n in aug.available_augmentations() if aug.augmentation_info(n).kind == "depth"]
 
 
 def _images(seed: int = 0) -> torch.Tensor:
@@ -32,14 +33,23 @@ def _cloud(seed: int = 0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
 
 
 def test_every_augmentation_declares_known_spaces_and_the_registry_refuses_a_second_name():
-    assert set(aug.available_augmentations()) == set(IMAGE_AUGS) | set(POINT_AUGS)
+    assert set(aug.available_augmentations()) == set(IMAGE_AUGS) | set(POINT_AUGS) | set(DEPTH_AUGS)
+    assert DEPTH_AUGS == ["depth_noise_1", "depth_noise_2"]
+    reads = {
+        "points": reads_points,
+        "depth": lambda s: DEPTH_PREFIX in space_info(s).sensors,
+        "image": reads_images,
+        "colour": reads_images,
+    }
     for name in aug.available_augmentations():
         info = aug.augmentation_info(name)
         assert info.spaces and set(info.spaces) <= set(available_spaces()) and info.kind in aug.KINDS
-        # point transforms apply to spaces with a cloud, the others to spaces with images (a fused space has both)
-        assert set(info.spaces) <= {
-            s for s in available_spaces() if (reads_points if info.kind == "points" else reads_images)(s)
-        }
+        # point transforms apply to spaces with a cloud, depth ones to those built from depth, the others to spaces
+        # with images (a fused space has what its parts have)
+        assert set(info.spaces) <= {s for s in available_spaces() if reads[info.kind](s)}
+    assert set(aug.augmentation_info("depth_noise_1").spaces) == {"depth", "rgbd", "pointmap", "pointcloud"} | {
+        s for s in available_spaces() if "+" in s and DEPTH_PREFIX in space_info(s).sensors
+    }
     with pytest.raises(ValueError, match="already registered"):
         aug.register_augmentation("random_shift", "image", "again")(lambda x, t: x)
 

@@ -155,7 +155,10 @@ def test_configs_presets_and_grids_treat_the_fused_space_as_points_with_images()
     assert all(any(isinstance(m, batch_norms) for m in part.modules()) for part in pair.parts)
     assert preset_encoder("cpu", FUSED) == "resnet18+pointnet"
     fields = preset_overrides("cpu", "obs_act", FUSED, "spatial_softmax+dp3")
-    assert fields["point_features"] == "xyz" and fields["num_tokens"] == 128 and "encoder" not in fields
+    assert fields["point_features"] == "xyz" and fields["num_tokens"] == 128
+    assert fields["encoder"] == "resnet18+pointnet"  # the preset's pair; the grid's encoder axis wins over it
+    # the dp3 preset's pair, with DP3's point settings: not the default pair (resnet50+pointnet) with them
+    assert preset_overrides("dp3", "obs_diffusion", FUSED)["encoder"] == "resnet18+dp3"
     grid = parse_grid(
         {
             "tasks": ["PushCubeWide-v1"],
@@ -194,8 +197,14 @@ def test_a_fused_space_registered_in_one_place_is_taken_by_every_consumer(rgb_de
     assert not (space.points or space.positions or space.control)
     assert set(sensor_keys(rgb_depth, [CAM])) == set(sensor_keys("rgbd", [CAM]))
     assert space_kinds(rgb_depth) == ("all", "image", "depth")
-    # augmentations: image and colour transforms apply, point transforms do not
-    assert set(available_augmentations(rgb_depth)) == {"random_shift", "random_crop", "colour_jitter"}
+    # augmentations: image, colour and depth transforms apply, point transforms do not
+    assert set(available_augmentations(rgb_depth)) == {
+        "random_shift",
+        "random_crop",
+        "colour_jitter",
+        "depth_noise_1",
+        "depth_noise_2",
+    }
     with pytest.raises(AugmentationError, match="'point_jitter' does not apply to obs_space='rgb\\+depth'"):
         parse_augment("point_jitter", rgb_depth)
     # the encoder pairs of its parts, with their options (each option the pair's parts share sets both)
@@ -204,7 +213,8 @@ def test_a_fused_space_registered_in_one_place_is_taken_by_every_consumer(rgb_de
     # the paper preset (official depth normalisation, zero-initialised extra channels) makes a valid config
     fields = preset_overrides("paper", "obs_act", rgb_depth)
     assert fields["depth_normalization"] == "official" and fields["zero_init_extra_channels"] is True
-    config = ObsACTConfig(device="cpu", obs_space=rgb_depth, encoder="resnet50+resnet50", **fields)
+    assert fields["encoder"] == "resnet50+resnet50"
+    config = ObsACTConfig(device="cpu", obs_space=rgb_depth, **fields)
     assert config.encoder == "resnet50+resnet50"
     grid = parse_grid(
         {"tasks": ["PushCubeWide-v1"], "obs_spaces": [rgb_depth], "augmentations": {rgb_depth: ["random_shift"]}}

@@ -17,10 +17,12 @@ observation space trains and evaluates on it as on a ManiSkill task.
   the oracle reads one task's at a time), then the goal's position with the identity rotation.
 
 Colour keeps the scene's lighting and shadows, from a smaller shadow map (`SHADOW_MAP_SIZE`). Only what the policy
-reads is rendered: `cameras` (none for the blind and oracle controls) and, of each, the
-`sensors` it reads (colour, depth, or both). `reset(seed=s)` places the objects from `s` alone (Meta-World's seeded
-randomisation, as LeRobot's env sets it), so an episode is reproducible from its seed. An episode ends at success
-(`terminated`, as in LeRobot's env) or after `episode_length` steps (`truncated`).
+reads is rendered: `cameras` (none for the blind and oracle controls) and, of each, the `sensors` it reads (colour,
+depth, or both). `reset(seed=s)` places the objects from `s` alone (Meta-World's seeded randomisation, as LeRobot's
+env sets it), so an episode is reproducible from its seed. `perturbation` (`kind:value`, envs/perturbations.py;
+Meta-World takes every kind but ray tracing) changes the scene's cameras, lights or background
+(envs/metaworld/perturbations.py) or, `depth_noise`, its depth images, the noise drawn from the episode's seed. An
+episode ends at success (`terminated`, as in LeRobot's env) or after `episode_length` steps (`truncated`).
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import gymnasium as gym
 import numpy as np
 
 from lerobot_obsbench.envs.base_task import check_cameras
+from lerobot_obsbench.envs.metaworld.perturbations import apply_perturbation
 from lerobot_obsbench.envs.metaworld.rendering import check_gl, open_renderer
 from lerobot_obsbench.envs.metaworld.tasks import (
     CORNER2_POSITION,
@@ -36,6 +39,7 @@ from lerobot_obsbench.envs.metaworld.tasks import (
     TURNED_CAMERAS,
     metaworld_task,
 )
+from lerobot_obsbench.envs.perturbations import METAWORLD_KINDS, DepthNoiser, check_supported, parse_perturbation
 from lerobot_obsbench.errors import ConfigError, MissingDependencyError
 from lerobot_obsbench.schema import (
     DEFAULT_POINT_FEATURES,
@@ -117,10 +121,13 @@ class MetaWorldEnv(gym.Env):
         sensors: tuple[str, ...] = (IMAGE_PREFIX, DEPTH_PREFIX),
         episode_length: int | None = None,
         render_mode: str | None = "rgb_array",
+        perturbation: str | None = None,
     ):
         self.spec_ = metaworld_task(task)
         self.cameras = list(cameras)
         check_cameras(self.spec_, self.cameras)
+        self.perturbation = parse_perturbation(perturbation)
+        check_supported(self.perturbation, METAWORLD_KINDS, "Meta-World")
         if not isinstance(image_size, int) or isinstance(image_size, bool) or image_size < MIN_IMAGE_SIZE:
             raise ConfigError(f"image_size must be a whole number of pixels >= {MIN_IMAGE_SIZE}; got {image_size!r}")
         unknown = [s for s in sensors if s not in (IMAGE_PREFIX, DEPTH_PREFIX)]
@@ -141,6 +148,9 @@ class MetaWorldEnv(gym.Env):
         self._env.reset()
         self._env._freeze_rand_vec = False  # a new placement at each reset, drawn from the reset's seed
         self._env.seeded_rand_vec = True
+        apply_perturbation(self._env.model, self._env.data, self.cameras, self.perturbation)
+        noisy = self.perturbation is not None and self.perturbation.kind == "depth_noise"
+        self._depth_noise = DepthNoiser(self.perturbation) if noisy else None
         self.objects = self.spec_.privileged_actors
         self._renderer = None
         if self.cameras:
@@ -240,6 +250,9 @@ class MetaWorldEnv(gym.Env):
             if depth is not None:
                 frame[depth_key(camera)] = depth
             frame[intrinsics_key(camera)], frame[cam2world_key(camera)] = self.camera_calibration(camera)
+        if self._depth_noise is not None and DEPTH_PREFIX in self.sensors:
+            batch = {key: frame[key][None] for key in frame}
+            frame.update({key: value[0] for key, value in self._depth_noise.apply(batch, self.cameras).items()})
         frame[STATE_KEY] = self._state()
         frame[PRIVILEGED_STATE_KEY] = self._privileged_state(self._last_obs)
         return frame
@@ -250,6 +263,8 @@ class MetaWorldEnv(gym.Env):
         super().reset(seed=seed)
         if seed is not None:
             self._env.seed(seed)  # Meta-World's reset ignores its seed argument
+        if self._depth_noise is not None:
+            self._depth_noise.reset([seed])
         self._last_obs, _ = self._env.reset()
         self._steps = 0
         return frame_to_env_observation(self.schema_frame()), {"is_success": False}
