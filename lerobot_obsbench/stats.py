@@ -48,6 +48,22 @@ def wilson_interval(successes: int, n: int, z: float = 1.959963984540054) -> tup
     return low, high
 
 
+def _check_runs(runs: list[tuple[int, int]]) -> None:
+    if not runs:
+        raise ConfigError("runs must name at least one training seed")
+    for k, n in runs:
+        if n <= 0 or not 0 <= k <= n:
+            raise ConfigError(f"each run needs 0 <= successes <= episodes and episodes > 0; got {k}/{n}")
+
+
+def _replicates(runs: list[tuple[int, int]], rng: np.random.Generator, drawn: np.ndarray) -> np.ndarray:
+    """A pooled success rate per bootstrap replicate: the training seeds `drawn` (replicates, seeds) of `runs`,
+    each drawn seed's rate redrawn from its Jeffreys posterior Beta(k + 1/2, n - k + 1/2) and its episodes pooled."""
+    successes, episodes = np.array(runs, dtype=float).T
+    k, n = successes[drawn], episodes[drawn]
+    return (rng.beta(k + 0.5, n - k + 0.5) * n).sum(axis=1) / n.sum(axis=1)
+
+
 def seeds_and_episodes_interval(
     runs: list[tuple[int, int]], reps: int = 20000, level: float = 0.95, seed: int = 0
 ) -> tuple[float, float]:
@@ -57,21 +73,60 @@ def seeds_and_episodes_interval(
     pools the episodes as the point estimate does. The episode level draws from the seed's Jeffreys posterior
     Beta(k + 1/2, n - k + 1/2) rather than resampling its episodes, so a seed at 0/n or n/n still varies (the
     same reason a Wilson interval is not empty there). `seed`: the bootstrap's own seed (reproducible reports)."""
-    if not runs:
-        raise ConfigError("runs must name at least one training seed")
-    for k, n in runs:
-        if n <= 0 or not 0 <= k <= n:
-            raise ConfigError(f"each run needs 0 <= successes <= episodes and episodes > 0; got {k}/{n}")
-    successes, episodes = np.array(runs, dtype=float).T
+    _check_runs(runs)
     rng = np.random.default_rng(seed)
-    drawn = rng.integers(0, len(runs), size=(reps, len(runs)))
-    k, n = successes[drawn], episodes[drawn]
-    rates = (rng.beta(k + 0.5, n - k + 0.5) * n).sum(axis=1) / n.sum(axis=1)
+    rates = _replicates(runs, rng, rng.integers(0, len(runs), size=(reps, len(runs))))
     tail = (1 - level) / 2
     low, high = np.quantile(rates, [tail, 1 - tail])
     # as the Jeffreys interval does at 0/n and n/n: the posterior's tail would otherwise leave out the rate itself
+    successes, episodes = np.array(runs, dtype=float).T
     if not successes.any():
         low = 0.0
     if (successes == episodes).all():
         high = 1.0
     return float(low), float(high)
+
+
+def mean_over_tasks_interval(
+    tasks: list[list[tuple[int, int]]], reps: int = 20000, level: float = 0.95, seed: int = 0
+) -> tuple[float, float, float]:
+    """(point, low, high) of the mean over `tasks` of each task's pooled success rate (each task: its training
+    seeds' (successes, episodes)), the interval by `seeds_and_episodes_interval`'s bootstrap stratified by task."""
+    for runs in tasks:
+        _check_runs(runs)
+    rng = np.random.default_rng(seed)
+    replicates = [_replicates(r, rng, rng.integers(0, len(r), size=(reps, len(r)))) for r in tasks]
+    point = np.mean([sum(k for k, _ in r) / sum(n for _, n in r) for r in tasks])
+    tail = (1 - level) / 2
+    low, high = np.quantile(np.mean(replicates, axis=0), [tail, 1 - tail])
+    return float(point), float(low), float(high)
+
+
+def relative_success(
+    tasks: list[list[tuple[int, int, int, int]]], reps: int = 20000, level: float = 0.95, seed: int = 0
+) -> tuple[float, float, float] | None:
+    """How much of its unperturbed success a method keeps under a perturbation, over `tasks` — each task a list of
+    its training seeds' (successes perturbed, episodes perturbed, successes unperturbed, episodes unperturbed) — as
+    (point, low, high): the mean over tasks of each task's pooled perturbed rate over its pooled unperturbed rate
+    (1: as often as unperturbed). The interval is `seeds_and_episodes_interval`'s bootstrap stratified by task, the
+    same training seeds drawn for both rates of a replicate. None where some task never succeeds unperturbed (its
+    ratio has no meaning)."""
+    if not tasks:
+        raise ConfigError("relative_success needs at least one task")
+    for seeds in tasks:
+        _check_runs([(kp, n) for kp, n, _, _ in seeds] + [(k0, n) for _, _, k0, n in seeds])
+    if any(sum(k0 for _, _, k0, _ in seeds) == 0 for seeds in tasks):
+        return None
+    rng = np.random.default_rng(seed)
+    point, replicates = [], []
+    for seeds in tasks:
+        perturbed, nominal = [(kp, n) for kp, n, _, _ in seeds], [(k0, n) for _, _, k0, n in seeds]
+        point.append(
+            (sum(k for k, _ in perturbed) / sum(n for _, n in perturbed))
+            / (sum(k for k, _ in nominal) / sum(n for _, n in nominal))
+        )
+        drawn = rng.integers(0, len(seeds), size=(reps, len(seeds)))
+        replicates.append(_replicates(perturbed, rng, drawn) / _replicates(nominal, rng, drawn))
+    tail = (1 - level) / 2
+    low, high = np.quantile(np.mean(replicates, axis=0), [tail, 1 - tail])
+    return float(np.mean(point)), float(low), float(high)

@@ -39,9 +39,17 @@ from lerobot_obsbench.bench.specs import (
     RunSpec,
 )
 from lerobot_obsbench.envs.base_task import TaskError, check_cameras
-from lerobot_obsbench.envs.catalog import task_record
+from lerobot_obsbench.envs.catalog import is_metaworld, task_record
 from lerobot_obsbench.envs.maniskill import DEFAULT_CONTROL_MODE
-from lerobot_obsbench.envs.perturbations import parse_perturbation
+from lerobot_obsbench.envs.perturbations import (
+    KINDS,
+    MANISKILL_KINDS,
+    METAWORLD_KINDS,
+    PerturbationError,
+    applies_to,
+    check_supported,
+    parse_perturbation,
+)
 from lerobot_obsbench.presets import PRESETS
 from lerobot_obsbench.rlbench.evaluate import MAX_STEPS as RLBENCH_MAX_STEPS
 from lerobot_obsbench.rlbench.evaluate import camera_view_for
@@ -72,7 +80,7 @@ class Grid:
     # report; a space not listed trains without augmentation
     augmentations: dict[str, list[str]] = grid_field({}, resolved=True)
     # training budget: exactly one unit per policy (module docstring); a number or a mapping policy -> number
-    steps: float | dict[str, float] | None = grid_field(None, number=POSITIVE, shape="per_policy")
+    steps: int | dict[str, int] | None = grid_field(None, number=COUNT, shape="per_policy")
     samples: float | dict[str, float] | None = grid_field(None, number=POSITIVE, shape="per_policy")
     demo_epochs: float | dict[str, float] | None = grid_field(None, number=POSITIVE, shape="per_policy")
     frame_epochs: float | dict[str, float] | None = grid_field(None, number=POSITIVE, shape="per_policy")
@@ -97,6 +105,9 @@ class Grid:
     cameras: list[str] = grid_field(["base_camera"], names=True)
     control_mode: str = grid_field(DEFAULT_CONTROL_MODE, text=True)
     eval_episodes: int = grid_field(50, number=COUNT)
+    # episodes of each perturbed test evaluation (the first of the nominal's test seeds); None: eval_episodes. Fewer
+    # buy more perturbations for the same time: a perturbation's effect is read over training seeds and tasks
+    perturbed_episodes: int | None = grid_field(None, number=COUNT)
     # ManiSkill evaluations: episodes run in lockstep, each env in a process of its own, one batched policy call
     # per step (envs/evaluate.py); None: the measured default for the device. Not part of a run's identity.
     eval_batch_size: int | None = grid_field(None, number=COUNT)
@@ -200,7 +211,9 @@ class Grid:
         """The run's test evaluations: each tested checkpoint, nominally and under every perturbation, then its
         learning curve's earlier checkpoints (nominally)."""
         return [
-            EvalSpec(run.run_id, checkpoint, "test", self.eval_episodes, perturbation, self.max_steps(run))
+            EvalSpec(
+                run.run_id, checkpoint, "test", self.episodes_under(perturbation), perturbation, self.max_steps(run)
+            )
             for checkpoint in self.test_checkpoints()
             for perturbation in ("none", *self.perturbations_for(run))
         ] + [
@@ -208,10 +221,15 @@ class Grid:
             for step in self.curve(run)
         ]
 
+    def episodes_under(self, perturbation: str) -> int:
+        """Test episodes of an evaluation under `perturbation` ("none": the nominal one)."""
+        return self.perturbed_episodes if perturbation != "none" and self.perturbed_episodes else self.eval_episodes
+
     def perturbations_for(self, run: RunSpec) -> list[str]:
-        """The perturbations a run is evaluated under: none for the controls, which read no pixels (every
-        perturbation changes only what the cameras see: their episodes would replay the nominal ones)."""
-        return [] if is_control(run.obs_space) else list(self.perturbations)
+        """The perturbations a run is evaluated under: those that can change what it reads (none for the controls;
+        `depth_noise` for spaces built from depth, light and background for those that read colour): under the
+        others its episodes would replay the nominal ones."""
+        return [p for p in self.perturbations if applies_to(p, run.obs_space, run.point_features)]
 
     def validations(self, run: RunSpec, checkpoint_steps: list[int]) -> list[EvalSpec]:
         """The validation evaluations that select the run's best checkpoint."""
@@ -250,9 +268,16 @@ def parse_grid(data: dict, name: str = "grid") -> Grid:
     check_values(values, GRID_FIELDS, {"policies": policies, "tasks": tasks}, name)
     if "learning_rates" in values:
         values["learning_rates"] = [float(lr) for lr in values["learning_rates"]]
+    cameras = values.get("cameras", _default("cameras"))
+    seeing = [space for space in spaces if not is_control(space)]
+    if cameras == [] and seeing:
+        raise GridError(
+            f"{name}: cameras is empty, and obs_spaces {seeing} read a camera; name one (e.g. [base_camera]) or "
+            "leave cameras out for the task's own"
+        )
     for task in [] if rlbench else tasks:
         try:
-            check_cameras(task_record(task), values.get("cameras", _default("cameras")))
+            check_cameras(task_record(task), cameras)
         except TaskError as err:
             raise GridError(f"{name}: {err}") from None
     grid = Grid(
@@ -295,9 +320,18 @@ def _check_grid(grid: Grid, rlbench: bool, name: str) -> None:
         grid.budget(policy)  # exactly one unit per policy
     for text in grid.perturbations:
         try:
-            parse_perturbation(text)
+            _check_perturbation(grid, text)
         except ValueError as err:
             raise GridError(f"{name}: {err}") from None
+    if grid.perturbed_episodes is not None and not grid.perturbations:
+        raise GridError(
+            f"{name}: perturbed_episodes is set but perturbations is empty; list perturbations or leave it out"
+        )
+    if (grid.perturbed_episodes or 0) > grid.eval_episodes:
+        raise GridError(
+            f"{name}: perturbed_episodes ({grid.perturbed_episodes}) is more than eval_episodes "
+            f"({grid.eval_episodes}): a perturbed evaluation runs the first of the nominal's test seeds"
+        )
     if rlbench:
         for text in grid.perturbations:
             try:
@@ -325,6 +359,22 @@ def _check_grid(grid: Grid, rlbench: bool, name: str) -> None:
                 f"list the value there instead (the run would train one thing while its results say another)"
             )
     check_policy_configs(grid, name)
+
+
+def _check_perturbation(grid: Grid, text: str) -> None:
+    """A perturbation of the grid: written rightly, applied by the env of every task's family (RLBench's camera
+    views: `camera_view_for`), and able to change what some space of the grid sees."""
+    perturbation = parse_perturbation(text)
+    for task in grid.tasks:
+        if grid_task_name(task) is None:
+            metaworld = is_metaworld(task_record(task))
+            kinds, family = (METAWORLD_KINDS, "Meta-World") if metaworld else (MANISKILL_KINDS, "ManiSkill")
+            check_supported(perturbation, kinds, family)
+    if not any(applies_to(text, run.obs_space, run.point_features) for run in grid.expand()):
+        raise PerturbationError(
+            f"perturbations: {text} changes only what spaces reading {KINDS[perturbation.kind].changes_text} see, "
+            f"and none of obs_spaces {grid.obs_spaces} does; add such a space or leave it out"
+        )
 
 
 def _check_curve(grid: Grid, name: str) -> None:

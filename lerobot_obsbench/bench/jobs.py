@@ -68,6 +68,7 @@ class TrainJob:
     loader_workers: int
     threads: int | None
     curve: tuple[int, ...] = ()
+    retrain: bool = False  # its earlier training's checkpoints are gone: its record replaces that training's
 
     @property
     def cpus(self) -> int:
@@ -88,6 +89,7 @@ class TrainJob:
             loader_workers=self.loader_workers,
             threads=self.threads,
             curve=self.curve,
+            retrain=self.retrain,
         )
 
     def describe(self) -> str:

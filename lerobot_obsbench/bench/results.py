@@ -2,7 +2,8 @@
 driver).
 
 - `{"kind": "train", "run_id", "config", "method", "task", "train_steps", "samples", "checkpoints": {step:
-  path}, "checkpoint" (the last), "timings", "versions", "device", "finished_at"}` — one per trained run;
+  path}, "checkpoint" (the last), "timings", "versions", "machine", "device", "finished_at"}` — one per trained
+  run; a run trained again because its checkpoints were gone (`"retrained": true`) replaces its earlier record;
 - `{"kind": "eval", "eval_id", "run_id", "checkpoint" ("last" | "best" | "step:N"), "checkpoint_step", "split"
   ("test" | "validation"), "perturbation", "episodes", "successes", "success_rate", "ci95", "sub_success",
   "episode_length_mean", "per_seed", "max_steps", ...}` — one per evaluation of a run's checkpoint.
@@ -77,6 +78,15 @@ def read_results(path: Path, warn=None) -> list[dict]:
             warn(f"{path}:{number}: results line skipped: {problem}; {redone} will be redone")
             continue
         identity = (record["kind"], record["run_id"] if record["kind"] == "train" else record["eval_id"])
+        if identity in seen and record.get("retrained") and identity[0] == "train":
+            # a run trained again after its checkpoints were gone: its new record replaces the earlier one
+            records = [
+                r
+                for r in records
+                if (r["kind"], r.get("run_id"), r.get("eval_id")) != ("train", record["run_id"], None)
+            ]
+            records.append(record)
+            continue
         if identity in seen:
             duplicates.append(number)
             continue

@@ -61,6 +61,8 @@ class Work:
     evaluated: dict[str, dict]  # eval_id -> eval record
     to_train: list[RunSpec] = field(default_factory=list)
     demos: dict[str, tuple[RunSpec, int]] = field(default_factory=dict)  # demo_key -> (a run, most demos)
+    # run_id -> the checkpoint a trained run's evaluations still need and that is gone: trained again
+    gone: dict[str, str] = field(default_factory=dict)
 
 
 def load_work(grid: Grid, out: Path) -> Work:
@@ -73,13 +75,34 @@ def load_work(grid: Grid, out: Path) -> Work:
         records += copy_trained_runs(grid, runs, records, results)
     trained = {r["run_id"]: r for r in by_kind(records, "train")}
     work = Work(runs, trained, {r["eval_id"]: r for r in by_kind(records, "eval")})
-    work.to_train = [r for r in runs if r.run_id not in trained]
+    for run in runs:
+        missing = checkpoint_gone(grid, run, work)
+        if missing is not None:
+            work.gone[run.run_id] = missing
+    work.to_train = [r for r in runs if r.run_id not in trained or r.run_id in work.gone]
     for run in work.to_train:
         _, most = work.demos.get(run.demo_key, (run, 0))
         work.demos[run.demo_key] = (run, max(most, run.demos))
     # the held-out demonstrations follow the most any run of the dataset trains on
     work.demos = {key: (run, most + grid.held_out_demos) for key, (run, most) in work.demos.items()}
     return work
+
+
+def checkpoint_gone(grid: Grid, run: RunSpec, work: Work) -> str | None:
+    """The checkpoint (a path) that a trained run's evaluations still to do need and that is no longer on disk
+    (its output folder deleted, or its results file copied from elsewhere), or None: such a run is trained again,
+    into the same run id, to evaluate it (a grid that evaluates another grid's checkpoints trains nothing: its
+    evaluations refuse the missing checkpoint instead)."""
+    train = work.trained.get(run.run_id)
+    if train is None or grid.checkpoints_from:
+        return None
+    to_do = [s for s in grid.evaluations(run) if s.eval_id not in work.evaluated]
+    wanted = {
+        str(train["train_steps"]) if s.checkpoint in ("last", "best") else s.checkpoint.removeprefix("step:")
+        for s in to_do
+    }
+    paths = [train["checkpoints"].get(step) for step in sorted(wanted)]
+    return next((p for p in paths if p is not None and not Path(p, "model.safetensors").is_file()), None)
 
 
 def copy_trained_runs(grid: Grid, runs: list[RunSpec], records: list[dict], results: Path) -> list[dict]:
@@ -134,6 +157,11 @@ def print_plan(grid: Grid, work: Work, out: Path, device: str, echo=print, worke
         f"{len(work.to_train)} to train; {done_evals} of {all_evals} test evaluations done; results -> "
         f"{out / RESULTS_FILE}"
     )
+    for run_id, path in work.gone.items():
+        echo(
+            f"  run {run_id} has evaluations to do and its checkpoint {path} is gone: it is trained again (the same "
+            "run id; under the same CPU kernels and library builds, the same weights)"
+        )
     for run_id, steps in missing.items():
         echo(
             f"  run {run_id} kept no checkpoint at steps {steps} of eval_checkpoints (it was trained before they "
@@ -250,7 +278,7 @@ class Driver:
                 )
             )
         for run in self.work.runs:
-            if run.run_id in self.work.trained:
+            if run.run_id in self.work.trained and run.run_id not in self.work.gone:
                 self.schedule_evaluations(run)
 
     def train(self, run: RunSpec, dataset: str) -> None:
@@ -265,6 +293,7 @@ class Driver:
                 loader_workers=self.loader_workers,
                 threads=self.threads,
                 curve=self.grid.curve(run),
+                retrain=run.run_id in self.work.gone,
             )
         )
 

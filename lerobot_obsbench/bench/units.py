@@ -237,10 +237,12 @@ def train_unit(
     loader_workers: int = 0,
     threads: int | None = None,
     curve: tuple[int, ...] = (),
+    retrain: bool = False,
 ) -> dict:
     """Train one run with stock lerobot-train (resuming from its last checkpoint after a kill), keeping its
     `checkpoints` evenly spaced checkpoints and those of its learning curve's `curve` steps, then compute its
-    diagnostics on the dataset's last `held_out` demonstrations; returns its train record."""
+    diagnostics on the dataset's last `held_out` demonstrations; returns its train record (`retrain`: one that
+    replaces the record of an earlier training whose checkpoints are gone)."""
     run = RunSpec.from_config(run_config)
     root = run_dir(out_dir, run.run_id)
     root.mkdir(parents=True, exist_ok=True)
@@ -295,9 +297,10 @@ def train_unit(
         "resumed_from": resumed_from,
         # whether the resume continued the uninterrupted run's data order and random stream (patches.py, fix 5)
         **({"resumed_exactly": resumes_exactly()} if resumed_from else {}),
+        **({"retrained": True} if retrain else {}),
         "device": device,
         "timings": {"train_s": train_s},
-        "diagnostics": run_diagnostics(run, root, steps, Path(saved[steps]), Path(dataset), held_out, device),
+        "diagnostics": run_diagnostics(run, root, steps, Path(saved[steps]), Path(dataset), held_out, device, threads),
         "versions": versions(),
         "machine": facts_of_process(env),  # those of the lerobot-train it ran: same machine, same environment
         "finished_at": now(),
@@ -305,15 +308,26 @@ def train_unit(
 
 
 def run_diagnostics(
-    run: RunSpec, root: Path, steps: int, checkpoint: Path, dataset: Path, held_out: int, device: str
+    run: RunSpec,
+    root: Path,
+    steps: int,
+    checkpoint: Path,
+    dataset: Path,
+    held_out: int,
+    device: str,
+    threads: int | None = None,
 ) -> dict:
     """The run's loss curve (a run of `steps`), and its held-out diagnostics on the dataset's last `held_out`
-    episodes (which no run trains on). A failure is recorded in place of the held-out figures, not raised: the
-    trained run is kept."""
+    episodes (which no run trains on), on the unit's `threads` as its training (so any engine computes the same
+    figures). A failure is recorded in place of the held-out figures, not raised: the trained run is kept."""
     from lerobot_obsbench.bench.diagnostics import held_out_diagnostics, loss_curve
     from lerobot_obsbench.envs.catalog import task_record
 
     out: dict = {"loss_curve": loss_curve((root / "train.log").read_text(), log_every(steps))}
+    if held_out and threads:
+        import torch
+
+        torch.set_num_threads(threads)
     if held_out:
         total = demo_count(dataset)
         episodes = list(range(total - held_out, total))

@@ -21,12 +21,14 @@ simulate and render in one process and their observations stay on the GPU up to 
 those of the CPU simulation, seed for seed: the physics engine differs, and ManiSkill seeds a whole batch's
 torch-drawn initial states from its first env's seed, so an episode's start depends on the wave it runs in
 (deterministic for the same seeds and N). Compare checkpoints within one simulation backend; `physx_cpu` keeps the
-CPU simulation on any device.
+CPU simulation on any device. Where SAPIEN's GPU PhysX library is missing (an offline node: SAPIEN downloads it from
+GitHub at the first GPU simulation), the evaluation runs on the CPU simulation instead, saying so in one line.
 """
 
 from __future__ import annotations
 
 import json
+import sys
 import time
 from contextlib import nullcontext
 from pathlib import Path
@@ -43,10 +45,18 @@ from lerobot_obsbench.envs.maniskill import (
     SIM_BACKENDS,
     STATE_DIM,
     make_obsbench_env,
+    physx_gpu_library,
 )
 from lerobot_obsbench.envs.metaworld.env import ACTION_SIZE as METAWORLD_ACTION
 from lerobot_obsbench.envs.metaworld.env import STATE_SIZE as METAWORLD_STATE
 from lerobot_obsbench.envs.metaworld.env import rendered_sensors
+from lerobot_obsbench.envs.perturbations import (
+    MANISKILL_KINDS,
+    METAWORLD_KINDS,
+    check_changes,
+    check_supported,
+    parse_perturbation,
+)
 from lerobot_obsbench.envs.vector import make_envs
 from lerobot_obsbench.errors import ConfigError, UsageError
 from lerobot_obsbench.outputs import record_outputs, write_json_atomic, write_text_atomic
@@ -64,14 +74,10 @@ def check_compatible(config, cameras: list[str], image_size: int, control_mode: 
     check_compatibility(config, cameras, (image_size, image_size), state, action, spec.privileged_actors)
 
 
-def _metaworld_options(spec, control_mode: str, perturbation: str | None, sim_backend: str) -> None:
+def _metaworld_options(spec, control_mode: str, sim_backend: str) -> None:
     """Refuse the ManiSkill-only settings for a Meta-World task, which would otherwise be ignored."""
     if control_mode not in (DEFAULT_CONTROL_MODE, spec.control_mode):
         raise UsageError(f"Meta-World tasks act by {spec.control_mode} only; got --env.control_mode {control_mode}")
-    if perturbation not in (None, "none"):
-        raise UsageError(
-            f"zero-shot perturbations are ManiSkill's; Meta-World tasks have none yet (got {perturbation})"
-        )
     if sim_backend not in ("auto", "physx_cpu"):
         raise UsageError(
             f"Meta-World tasks run on MuJoCo, one env per worker process; got --eval.sim_backend {sim_backend}"
@@ -111,6 +117,22 @@ def choose_sim_backend(sim_backend: str, device: str, batch_size: int, perturbat
         return sim_backend
     on_gpu = device.startswith("cuda") and batch_size > 1 and not str(perturbation).startswith("noise")
     return "physx_cuda" if on_gpu else "physx_cpu"
+
+
+def available_sim_backend(sim_backend: str, echo=None) -> str:
+    """`sim_backend`, or ManiSkill's CPU simulation where the GPU simulation cannot run here: SAPIEN loads its GPU
+    PhysX library from `physx_gpu_library()`, downloading it from GitHub at the first GPU simulation, which an
+    offline node cannot. Says why and where the library goes, in one line to `echo` (default: stderr)."""
+    if sim_backend != "physx_cuda" or physx_gpu_library().is_file():
+        return sim_backend
+    echo = echo or (lambda line: print(line, file=sys.stderr))
+    echo(
+        f"note: ManiSkill's GPU simulation needs SAPIEN's GPU PhysX library at {physx_gpu_library()}, which SAPIEN "
+        "downloads from GitHub at its first GPU simulation and is not there: evaluating on the CPU simulation "
+        "(physx_cpu; its episodes are not the GPU simulation's). To simulate on the GPU, copy the file there from a "
+        "machine that ran one (docs/performance.md#the-device-check-what-runs-on-a-gpu)"
+    )
+    return "physx_cpu"
 
 
 def make_eval_envs(env_kwargs: dict, size: int, sim_backend: str):
@@ -155,11 +177,14 @@ def evaluate(
         raise ConfigError(f"--eval.batch_size must be >= 1; got {batch_size}")
     seeds = eval_seeds(episodes, split)
     slots = min(batch_size, len(seeds))
+    perturbed = parse_perturbation(perturbation)
     if is_metaworld(spec):
-        _metaworld_options(spec, control_mode, perturbation, sim_backend)
+        _metaworld_options(spec, control_mode, sim_backend)
+        check_supported(perturbed, METAWORLD_KINDS, "Meta-World")
         sim = "mujoco"
     else:
-        sim = choose_sim_backend(sim_backend, device, slots, perturbation)
+        check_supported(perturbed, MANISKILL_KINDS, "ManiSkill")
+        sim = available_sim_backend(choose_sim_backend(sim_backend, device, slots, perturbation))
     policy, pre, post = load_policy(policy_path, device)
     # the plugin's policies name the cameras they read (none for the blind and oracle controls, which then render
     # nothing); a stock policy reads the task camera
@@ -167,15 +192,19 @@ def evaluate(
     resolution = getattr(policy.config, "camera_resolution", None)
     size = image_size or (resolution[0] if resolution else 128)
     check_compatible(policy.config, cameras, size, control_mode, task)  # before any simulator starts
+    plugin = hasattr(policy.config, "obs_space")
+    if plugin:
+        check_changes(perturbed, policy.config.obs_space, policy.config.point_features)
+    else:  # a stock policy sees colour
+        check_changes(perturbed, "rgb")
     steps = episode_length or spec.max_steps
-    env_kwargs = dict(task=task, cameras=cameras, image_size=size, episode_length=steps)
+    env_kwargs = dict(task=task, cameras=cameras, image_size=size, episode_length=steps, perturbation=perturbation)
     if is_metaworld(spec):  # rendering only the sensors the policy reads
-        plugin = hasattr(policy.config, "obs_space")
         env_kwargs["sensors"] = (
             rendered_sensors(policy.config.obs_space, policy.config.point_features) if plugin else (IMAGE_PREFIX,)
         )
     else:
-        env_kwargs.update(control_mode=control_mode, asset_dir=asset_dir, perturbation=perturbation, device=device)
+        env_kwargs.update(control_mode=control_mode, asset_dir=asset_dir, device=device)
     start = time.time()
     label = f"eval {task}" + (f" [{perturbation}]" if perturbation not in (None, "none") else "")
     bar = tqdm(total=len(seeds), desc=label, unit="ep", disable=not progress)
@@ -192,7 +221,7 @@ def evaluate(
                 if progress_file is not None:
                     write_json_atomic(progress_file, {"done": len(records), "episodes": len(seeds), "successes": wins})
             if video_dir is not None:
-                made_by = videos_made_by(policy_path, task, perturbation)
+                made_by = videos_made_by(policy_path, task, perturbation, episode_length, image_size, control_mode)
                 _write_videos(video_dir, task, wave, records, made_by, spec.fps)
     finally:
         bar.close()
@@ -267,11 +296,27 @@ def video_name(task: str, seed: int) -> str:
     return f"{task}_seed{seed}.mp4"
 
 
-def videos_made_by(policy_path: str | Path, task: str, perturbation: str | None) -> dict:
+def videos_made_by(
+    policy_path: str | Path,
+    task: str,
+    perturbation: str | None,
+    episode_length: int | None = None,
+    image_size: int | None = None,
+    control_mode: str = DEFAULT_CONTROL_MODE,
+) -> dict:
     """What an evaluation's videos show, as the folder's output record keeps it: another evaluation of the same
-    checkpoint, task and perturbation may replace them, any other needs --overwrite (`outputs.check_output_folder`)."""
+    checkpoint, task, perturbation, episode budget, image size and controller may replace them, any other needs
+    --overwrite (`outputs.check_output_folder`). None: the task's own budget, the policy's own size."""
     checkpoint = str(Path(policy_path).expanduser().resolve())
-    return {"writer": "obsbench eval", "policy_path": checkpoint, "task": task, "perturbation": perturbation or "none"}
+    return {
+        "writer": "obsbench eval",
+        "policy_path": checkpoint,
+        "task": task,
+        "perturbation": perturbation or "none",
+        "episode_length": episode_length,
+        "image_size": image_size,
+        "control_mode": control_mode,
+    }
 
 
 def _write_videos(video_dir: Path, task: str, seeds: list[int], records: dict, made_by: dict, fps: int) -> None:

@@ -261,9 +261,9 @@ def test_bad_grids_fail_with_the_valid_choices(change, words):
 @pytest.mark.parametrize(
     "field, text, message",
     [
-        ("steps", "-5", "steps must be a finite number > 0; got -5"),
-        ("steps", ".nan", "steps must be a finite number > 0; got nan"),
-        ("steps", "'x'", "steps must be a finite number > 0; got 'x'"),
+        ("steps", "-5", "steps must be a whole number >= 1; got -5"),
+        ("steps", ".nan", "steps must be a whole number >= 1; got nan"),
+        ("steps", "'x'", "steps must be a whole number >= 1; got 'x'"),
         ("image_size", "16", "image_size must be a whole number >= 32; got 16"),
         ("image_size", "'64'", "image_size must be a whole number >= 32; got '64'"),
         ("seeds", "a", "seeds must be a whole number >= 0; got 'a'"),
@@ -348,9 +348,20 @@ def test_dry_run_prints_the_plan_and_skips_finished_runs(tmp_path, capsys):
         "train_steps": 5,
     }
     append_result(tmp_path / "results.jsonl", train)
+    (tmp_path / "ckpt").mkdir()
+    (tmp_path / "ckpt" / "model.safetensors").write_bytes(b"")
+    train["checkpoints"] = {"5": str(tmp_path / "ckpt")}
+    (tmp_path / "results.jsonl").unlink()
+    append_result(tmp_path / "results.jsonl", train)
     assert main(["run", str(grid), "--out", str(tmp_path), "--dry-run"]) == 0
     assert "4 runs, 1 already trained, 3 to train; 0 of 4 test evaluations done" in capsys.readouterr().out
     assert not (tmp_path / "demos").exists()
+    # its checkpoint gone (a results file copied without the runs' folders): trained again, as its run id
+    (tmp_path / "ckpt" / "model.safetensors").unlink()
+    assert main(["run", str(grid), "--out", str(tmp_path), "--dry-run"]) == 0
+    text = capsys.readouterr().out
+    assert "4 runs, 0 already trained, 4 to train" in text
+    assert f"run {runs[0].run_id} has evaluations to do and its checkpoint {tmp_path / 'ckpt'} is gone" in text
 
 
 def test_a_grid_runs_in_pieces_with_the_whole_grids_run_ids(tmp_path, capsys):

@@ -148,6 +148,18 @@ def test_the_report_says_when_it_pools_runs_made_under_other_machine_facts_or_re
     assert report["checks"]["inexact_resumes"] == ["T obs_act/rgb/e seed 0 (at step 3000)"]
 
 
+def test_a_run_trained_again_replaces_its_earlier_training_record_and_keeps_its_evaluations(tmp_path):
+    path = tmp_path / "results.jsonl"
+    first, again = stored(record("r1", "T", "rgb", 3))
+    for line in (first, again, {**first, "checkpoint": "elsewhere"}, {**first, "checkpoint": "new", "retrained": True}):
+        append_result(path, line)
+    warnings = []
+    records = read_results(path, warn=warnings.append)
+    (train,) = by_kind(records, "train")
+    assert train["checkpoint"] == "new" and len(by_kind(records, "eval")) == 1
+    assert len(warnings) == 1 and "1 repeated record(s) skipped (lines 3:" in warnings[0]  # a repeat, not a retrain
+
+
 def test_results_store_reports_corrupted_lines_and_never_merges_lines(tmp_path):
     path = tmp_path / "results.jsonl"
     train_a, eval_a = stored(record("a", "T", "rgb", 3))
@@ -254,15 +266,57 @@ def test_report_files(tmp_path):
     assert "| Mean Rank | **1.00** | <u>1.50</u> |" in md  # T2 tie: both rank 1
     assert "Side by side on the shared rows (T1)" in md and "ResNet50 (paper)" in md
     page = paths["html"].read_text()
-    assert page.count("data:image/png;base64,") == 4  # bars, aggregates, light curve, sample efficiency
+    assert page.count("data:image/png;base64,") == 4  # bars, aggregates, light robustness, sample efficiency
     assert "<b>0.80" in page
     # no blind control: no probability-of-improvement plot; one seed per column: said under the title
     assert "probability_of_improvement.png" not in md and "> **Note:** One training seed behind" in md
-    for name in ("success_by_task.png", "aggregates.png", "generalization_light.png", "sample_efficiency.png"):
+    for name in ("success_by_task.png", "aggregates.png", "robustness_light.png", "sample_efficiency.png"):
         assert (tmp_path / "rep" / name).read_bytes()[:4] == b"\x89PNG"
     summary = summary_json(report)
+    # under light:0.03 rgb keeps 1/10 of its 2/10 (a half), pointcloud 1/10 of 8/10; T2 was not perturbed
+    kept = summary["checks"]["robustness"]["light:0.03"]
+    assert kept["T1"]["obs_act/rgb/e"][0] == pytest.approx(0.5) and "T2" not in kept
+    assert kept["all tasks"]["obs_act/pointcloud/e"][0] == pytest.approx(0.125)
+    assert "Robustness: the share of the unperturbed success kept" in md
+    # 5 and 10 demonstrations on T1 only, so the mean over tasks is T1's
+    efficiency = summary["checks"]["sample_efficiency"]
+    assert efficiency["all tasks"]["obs_act/rgb/e"]["5"][0] == pytest.approx(0.1)
+    assert efficiency["T1"]["obs_act/pointcloud/e"]["10"][0] == pytest.approx(0.8)
     assert summary["results"]["obs_act/pointcloud/e"] == {"mean_sr": 0.7, "mean_rank": 1.0, "tasks": 2}
     assert summary["published"]["ResNet50"]["mean_sr"] == pytest.approx(0.375)
+
+
+def test_robustness_is_the_share_of_unperturbed_success_kept_with_intervals_over_training_seeds():
+    """Three training seeds per column on two tasks: rgb keeps 12/30 of 24/30 on T1 and 0 of 15/30 on T2 under
+    camera_yaw:10 (a quarter over the two); pointcloud keeps all of its; a column that never succeeds unperturbed
+    has no share; blind is not evaluated under the perturbation and has no row."""
+    yaw = "camera_yaw:10"
+    outcomes = {  # task, space: (nominal per seed, perturbed per seed)
+        ("T1", "rgb"): ((8, 8, 8), (4, 4, 4)),
+        ("T2", "rgb"): ((5, 5, 5), (0, 0, 0)),
+        ("T1", "pointcloud"): ((7, 8, 9), (7, 8, 9)),
+        ("T2", "pointcloud"): ((6, 6, 6), (6, 6, 6)),
+        ("T1", "depth"): ((0, 0, 0), (0, 0, 1)),
+    }
+    records = [
+        record(
+            f"{task}{space}{seed}",
+            task,
+            space,
+            nominal[seed],
+            seed=seed,
+            evaluations={yaw: {"successes": perturbed[seed], "episodes": 10}},
+        )
+        for (task, space), (nominal, perturbed) in outcomes.items()
+        for seed in range(3)
+    ] + [record(f"blind{seed}", "T1", "none", 2, seed=seed) for seed in range(3)]
+    found = build_report(stored(*records))["checks"]["robustness"][yaw]
+    point, low, high = found["all tasks"]["obs_act/rgb/e"]
+    assert point == pytest.approx(0.25) and low < 0.25 < high and high < 0.5
+    assert found["T1"]["obs_act/rgb/e"][0] == pytest.approx(0.5) and found["T2"]["obs_act/rgb/e"][0] == 0
+    point, low, high = found["all tasks"]["obs_act/pointcloud/e"]
+    assert point == pytest.approx(1.0) and low < 1.0 < high
+    assert found["T1"]["obs_act/depth/e"] is None and "obs_act/none/e" not in found["T1"]
 
 
 def test_report_cli_with_published_table_only(tmp_path, capsys):

@@ -203,6 +203,25 @@ def test_a_gpu_simulation_without_sapiens_gpu_physx_library_says_how_to_get_it(m
     assert "--eval.sim_backend=physx_cpu" in message and "scripts/device_bundle.py" in message
 
 
+def test_an_evaluation_without_sapiens_gpu_physx_library_falls_back_to_the_cpu_simulation(monkeypatch, tmp_path):
+    """Where the GPU simulation cannot run (its library absent: an offline node), the evaluation degrades to the
+    CPU simulation with one line naming the file and where it goes, instead of failing."""
+    from lerobot_obsbench.envs import evaluate
+    from lerobot_obsbench.envs.maniskill import physx_gpu_library
+
+    monkeypatch.setenv("HOME", str(tmp_path))
+    said = []
+    assert (
+        evaluate.available_sim_backend(evaluate.choose_sim_backend("auto", "cuda", 4, None), said.append) == "physx_cpu"
+    )
+    (line,) = said
+    assert str(physx_gpu_library()) in line and "evaluating on the CPU simulation" in line
+    assert evaluate.available_sim_backend("physx_cpu", said.append) == "physx_cpu" and len(said) == 1
+    physx_gpu_library().parent.mkdir(parents=True)
+    physx_gpu_library().write_bytes(b"\x7fELF")  # there: the GPU simulation is kept
+    assert evaluate.available_sim_backend("physx_cuda", said.append) == "physx_cuda" and len(said) == 1
+
+
 @pytest.mark.parametrize("size", [1, 2])
 def test_any_env_method_runs_in_its_slot(size):
     """`call` + `result` (whole expert episodes for `obsbench demos --workers`): each slot's own env answers."""

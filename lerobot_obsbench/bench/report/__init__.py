@@ -14,9 +14,11 @@ Beyond the paper, checks that a method uses what it sees:
 - learning curves: each method's success rate at every checkpoint a grid's `eval_checkpoints` evaluates;
 - per-seed outcomes of every column, and each run's diagnostics (loss curve, held-out open-loop action error,
   objects' pixel size, point tokens on the objects; bench/diagnostics.py);
-- evaluation-only changes (camera moved, light, ...): per-seed agreement with the nominal evaluation of the same
-  checkpoint on the same seeds — how many episodes keep their outcome, and how many are identical (outcome and
-  length). A policy that ignores its observation repeats every episode exactly.
+- evaluation-only changes (camera moved, light, depth noise, ...): per-seed agreement with the nominal evaluation of
+  the same checkpoint on the same seeds — how many episodes keep their outcome, and how many are identical (outcome
+  and length; a policy that ignores its observation repeats every episode exactly) — and the share of its
+  unperturbed success each column keeps under each, per task and over tasks, with intervals over training seeds;
+- sample efficiency: success against the number of demonstrations, per task and over tasks, with intervals.
 
 The package, bottom-up: `statistics` (pooled cells, ranking, summaries), `runs` (run views, column labels,
 cells per task), `published` (the paper's tables), `comparisons` (controls, agreement, rliable's aggregates),
@@ -58,6 +60,8 @@ RESULT_SECTIONS = (
     tables.per_seed_section,
     tables.diagnostic_section,
     tables.agreement_section,
+    tables.robustness_section,
+    tables.sample_efficiency_section,
     tables.provenance_section,
 )
 PUBLISHED_SECTIONS = (tables.published_section, tables.side_by_side_section)
@@ -67,7 +71,7 @@ FIGURES = (
     figures.success_figure,
     figures.learning_curve_figure,
     figures.loss_figure,
-    figures.generalization_figures,
+    figures.robustness_figures,
     figures.sample_efficiency_figure,
 )
 

@@ -10,9 +10,10 @@ from dataclasses import dataclass
 from functools import cached_property
 
 from lerobot_obsbench.bench import aggregates
-from lerobot_obsbench.bench.report.runs import label_configs, method_labels, most_demos
+from lerobot_obsbench.bench.report.runs import label_configs, method_labels, most_demos, paired_with_nominal
 from lerobot_obsbench.bench.report.statistics import Cell, ReportError
 from lerobot_obsbench.schema import available_spaces, space_info
+from lerobot_obsbench.stats import mean_over_tasks_interval, relative_success
 
 # Marks of a seeing method whose 95% interval lies above its blind control's.
 ABOVE_ACROSS_SEEDS = "▲"  # both rest on >= 2 training seeds: the intervals cover training variance
@@ -108,9 +109,12 @@ def agreements(records: list[dict]) -> dict[tuple[str, str, str], Agreement]:
             continue
         for name, evaluation in r["evaluations"].items():
             changed = evaluation.get("per_seed")
-            if name == "none" or changed is None or changed["seeds"] != nominal["seeds"]:
+            # a perturbed evaluation runs the nominal's test seeds or the first of them (`perturbed_episodes`)
+            n = len(changed["seeds"]) if changed is not None else 0
+            if name == "none" or changed is None or changed["seeds"] != nominal["seeds"][:n]:
                 continue
-            pairs = list(zip(nominal["success"], changed["success"], nominal["length"], changed["length"], strict=True))
+            first = {k: nominal[k][:n] for k in ("success", "length")}
+            pairs = list(zip(first["success"], changed["success"], first["length"], changed["length"], strict=True))
             key = (r["task"], labels[r["run_id"]], name)
             changed_runs[key].append((changed["success"].count("1"), len(pairs)))
             nominal_runs[key].append((nominal["success"].count("1"), len(pairs)))
@@ -169,3 +173,43 @@ def seed_aggregates(
         if reference is not None and label != reference:
             over_reference[label] = (reference, aggregates.improvement_estimate(scores[label], scores[reference]))
     return SeedAggregates(estimates, over_blind, over_reference, left_out)
+
+
+ALL_TASKS = "all tasks"  # the aggregate's key beside the tasks'
+
+
+def robustness(records: list[dict], names: list[str]) -> dict[str, dict[str, dict[str, tuple | None]]]:
+    """{perturbation: {task, and ALL_TASKS: {label: (point, low, high) or None}}}: the share of its unperturbed
+    success each column keeps under each of `names` (`stats.relative_success`, intervals over training seeds and
+    episodes); the aggregate over the tasks where the column was evaluated under it. None: the column never succeeds
+    unperturbed there."""
+    out = {}
+    for name in names:
+        pairs = paired_with_nominal(records, name)
+        found = {
+            task: {label: relative_success([seeds]) for label, seeds in row.items()} for task, row in pairs.items()
+        }
+        labels = sorted({label for row in pairs.values() for label in row})
+        found[ALL_TASKS] = {
+            label: relative_success([row[label] for row in pairs.values() if label in row]) for label in labels
+        }
+        out[name] = found
+    return out
+
+
+def demo_curves(demo_cells: dict[int, dict[str, dict[str, Cell]]]) -> dict[str, dict[str, dict[int, tuple]]]:
+    """{task, and ALL_TASKS: {label: {demonstrations: (success rate, low, high)}}} over the demonstration counts,
+    intervals over training seeds and episodes; the aggregate is the mean over the tasks that have the column at
+    every count (`stats.mean_over_tasks_interval`)."""
+    out: dict[str, dict[str, dict[int, tuple]]] = defaultdict(lambda: defaultdict(dict))
+    for n, cells in sorted(demo_cells.items()):
+        for task, row in cells.items():
+            for label, cell in row.items():
+                out[task][label][n] = (cell.rate, *cell.ci95)
+    counts = sorted(demo_cells)
+    labels = sorted({label for cells in demo_cells.values() for row in cells.values() for label in row})
+    for label in labels:
+        tasks = [t for t in out if t != ALL_TASKS and all(label in demo_cells[n].get(t, {}) for n in counts)]
+        for n in counts if tasks else ():
+            out[ALL_TASKS][label][n] = mean_over_tasks_interval([list(demo_cells[n][t][label].runs) for t in tasks])
+    return {task: dict(row) for task, row in out.items()}

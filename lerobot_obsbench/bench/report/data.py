@@ -6,8 +6,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cached_property
 
-from lerobot_obsbench.bench.report.comparisons import SeedAggregates, seed_aggregates
-from lerobot_obsbench.bench.report.runs import cells_by_task, curve_cells, demo_counts, demo_series, labelled_runs
+from lerobot_obsbench.bench.report.comparisons import SeedAggregates, demo_curves, robustness, seed_aggregates
+from lerobot_obsbench.bench.report.runs import (
+    cells_by_task,
+    curve_cells,
+    demo_cells,
+    demo_counts,
+    labelled_runs,
+    perturbations,
+)
 from lerobot_obsbench.bench.report.statistics import Cell, rates
 
 
@@ -45,8 +52,23 @@ class ReportData:
         return demo_counts(self.records)
 
     @cached_property
-    def demo_series(self) -> dict[str, list[tuple[float, float]]]:
-        return demo_series(self.records)
+    def demo_cells(self) -> dict[int, dict[str, dict[str, Cell]]]:
+        """{demonstration count: {task: {label: Cell}}} of a sample-efficiency grid (empty otherwise)."""
+        return demo_cells(self.records)
+
+    @cached_property
+    def demo_curves(self) -> dict[str, dict[str, dict[int, tuple]]]:
+        """{task, and the aggregate: {label: {demonstrations: (rate, low, high)}}} (`comparisons.demo_curves`)."""
+        return demo_curves(self.demo_cells)
+
+    @cached_property
+    def perturbations(self) -> list[str]:
+        return perturbations(self.records)
+
+    @cached_property
+    def robustness(self) -> dict[str, dict[str, dict[str, tuple | None]]]:
+        """{perturbation: {task, and the aggregate: {label: share of the unperturbed success kept, interval}}}."""
+        return robustness(self.records, self.perturbations)
 
     @cached_property
     def curves(self) -> dict[str, dict[str, dict[int, Cell]]]:

@@ -10,9 +10,11 @@ import math
 import numpy as np
 
 from lerobot_obsbench.bench import aggregates
+from lerobot_obsbench.bench.report.comparisons import ALL_TASKS
 from lerobot_obsbench.bench.report.data import ReportData
-from lerobot_obsbench.bench.report.runs import method_labels, perturbation_series
+from lerobot_obsbench.bench.report.runs import method_labels
 from lerobot_obsbench.bench.report.statistics import Cell
+from lerobot_obsbench.envs.perturbations import NOMINAL_VALUE, parse_perturbation
 
 Figure = tuple[str, bytes]  # caption, PNG
 
@@ -158,31 +160,52 @@ def success_figure(data: ReportData) -> dict[str, Figure]:
     return {"success_by_task.png": ("Success rate per task", bar_chart(data.cells))}
 
 
-def learning_curve_figure(data: ReportData) -> dict[str, Figure]:
-    """Success rate against training steps, one panel per task, one line per method with its interval band; a
-    method keeps its colour in every panel and the legend names every method."""
-    if not data.curves:
-        return {}
+Curve = list[tuple[float, float, float, float]]  # (x, y, low, high) points, sorted by x
+
+
+def panel_chart(panels: dict[str, dict[str, Curve]], xlabel: str, ylabel: str, ylim=(0, 1), log_x: bool = False):
+    """One panel per key of `panels` (a task, the aggregate), one line per method with its interval band; a method
+    keeps its colour in every panel and the legend names every method."""
     plt = pyplot()
-    tasks = sorted(data.curves)
-    methods = sorted({label for curves in data.curves.values() for label in curves})
+    methods = sorted({label for curves in panels.values() for label in curves})
     palette = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     colour = {label: palette[i % len(palette)] for i, label in enumerate(methods)}
-    fig, axes = plt.subplots(1, len(tasks), figsize=(4.0 * len(tasks), 3.4), squeeze=False)
-    for ax, task in zip(axes[0], tasks, strict=True):
-        for label, curve in sorted(data.curves[task].items()):
-            steps = list(curve)
-            lows, highs = zip(*(cell.ci95 for cell in curve.values()), strict=True)
-            ax.plot(steps, [cell.rate for cell in curve.values()], marker="o", color=colour[label])
-            ax.fill_between(steps, lows, highs, color=colour[label], alpha=0.15)
-        ax.set_ylim(0, 1)
-        ax.set_xlabel("training step")
-        ax.set_title(task, fontsize=10)
-    axes[0][0].set_ylabel("success rate (test seeds)")
+    cols = min(4, len(panels))
+    rows = math.ceil(len(panels) / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.0 * cols, 3.4 * rows), squeeze=False)
+    for ax, (title, curves) in zip(axes.flat, panels.items(), strict=False):
+        for label, points in sorted(curves.items()):
+            xs, ys, lows, highs = zip(*points, strict=True)
+            ax.plot(xs, ys, marker="o", color=colour[label])
+            ax.fill_between(xs, lows, highs, color=colour[label], alpha=0.15)
+        if ylim is not None:
+            ax.set_ylim(*ylim)
+        if log_x:
+            ax.set_xscale("log")
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel, fontsize=8)
+        ax.set_title(title, fontsize=10)
+    for ax in list(axes.flat)[len(panels) :]:
+        ax.axis("off")
     handles = [plt.Line2D([], [], color=colour[label], marker="o", label=label) for label in methods]
-    axes[0][-1].legend(handles=handles, fontsize=7)
+    list(axes.flat)[len(panels) - 1].legend(handles=handles, fontsize=7)
     fig.tight_layout()
-    return {"learning_curves.png": ("Learning curves: success against training steps", figure_png(fig))}
+    return figure_png(fig)
+
+
+def learning_curve_figure(data: ReportData) -> dict[str, Figure]:
+    """Success rate against training steps, one panel per task, one line per method with its interval band."""
+    if not data.curves:
+        return {}
+    panels = {
+        task: {
+            label: [(step, cell.rate, *cell.ci95) for step, cell in curve.items()]
+            for label, curve in sorted(data.curves[task].items())
+        }
+        for task in sorted(data.curves)
+    }
+    chart = panel_chart(panels, "training step", "success rate (test seeds)")
+    return {"learning_curves.png": ("Learning curves: success against training steps", chart)}
 
 
 def loss_figure(data: ReportData) -> dict[str, Figure]:
@@ -201,20 +224,40 @@ def loss_figure(data: ReportData) -> dict[str, Figure]:
     return {"training_loss.png": ("Training loss per run", chart)}
 
 
-def generalization_figures(data: ReportData) -> dict[str, Figure]:
-    """Mean success rate over tasks against the value of each evaluation-only change."""
-    return {
-        f"generalization_{kind}.png": (
-            f"Zero-shot {kind}",
-            curve_chart(series, kind, f"Zero-shot generalization: {kind}"),
-        )
-        for kind, series in perturbation_series(data.records).items()
-    }
+def robustness_figures(data: ReportData) -> dict[str, Figure]:
+    """Per kind of perturbation, the share of its unperturbed success each method keeps against the perturbation's
+    value (the unperturbed scene at 1, where the kind has a nominal value), one panel per task and one over all
+    tasks, with intervals over training seeds and episodes."""
+    by_kind: dict[str, list[str]] = {}
+    for name in data.perturbations:
+        by_kind.setdefault(parse_perturbation(name).kind, []).append(name)
+    figures = {}
+    for kind, names in by_kind.items():
+        nominal = NOMINAL_VALUE[kind]
+        tasks = sorted({task for name in names for task in data.robustness[name]} - {ALL_TASKS}) + [ALL_TASKS]
+        panels = {}
+        for task in tasks:
+            curves: dict[str, Curve] = {}
+            for name in names:
+                for label, estimate in data.robustness[name].get(task, {}).items():
+                    if estimate is not None:
+                        curves.setdefault(label, []).append((parse_perturbation(name).scalar, *estimate))
+            panels[task] = {
+                label: sorted(points + ([(nominal, 1.0, 1.0, 1.0)] if nominal is not None else []))
+                for label, points in curves.items()
+            }
+        chart = panel_chart(panels, kind, "share of unperturbed success kept", ylim=(0, 1.25))
+        figures[f"robustness_{kind}.png"] = (f"Robustness to {kind}: success kept against its value", chart)
+    return figures
 
 
 def sample_efficiency_figure(data: ReportData) -> dict[str, Figure]:
-    """Mean success rate over tasks against the number of demonstrations."""
+    """Success rate against the number of demonstrations, one panel per task and one over all tasks."""
     if not data.demo_counts:
         return {}
-    chart = curve_chart(data.demo_series, "demonstrations", "Sample efficiency", log_x=True)
-    return {"sample_efficiency.png": ("Sample efficiency", chart)}
+    panels = {
+        task: {label: [(n, *estimate) for n, estimate in sorted(curve.items())] for label, curve in row.items()}
+        for task, row in sorted(data.demo_curves.items(), key=lambda item: item[0] == ALL_TASKS)
+    }
+    chart = panel_chart(panels, "demonstrations", "success rate (test seeds)", log_x=True)
+    return {"sample_efficiency.png": ("Sample efficiency: success against the number of demonstrations", chart)}

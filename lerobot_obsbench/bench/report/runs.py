@@ -7,8 +7,8 @@ from __future__ import annotations
 import json
 from collections import defaultdict
 
-from lerobot_obsbench.bench.report.statistics import Cell, ReportError, mean_over_tasks
-from lerobot_obsbench.envs.perturbations import NOMINAL_VALUE, parse_perturbation
+from lerobot_obsbench.bench.report.statistics import Cell, ReportError
+from lerobot_obsbench.envs.perturbations import parse_perturbation
 
 # Run-config fields that never split a method's column: the method itself, the task (a row), the training seed
 # (what a column pools) and the demonstration count (the sample-efficiency axis). Every other field changes what
@@ -151,21 +151,26 @@ def curve_cells(records: list[dict]) -> dict[str, dict[str, dict[int, Cell]]]:
     }
 
 
-def perturbation_series(records: list[dict]) -> dict[str, dict[str, list[tuple[float, float]]]]:
-    """{kind: {method: [(value, mean success rate over tasks)]}}, the nominal scene included at its value."""
-    names = sorted({p for r in records for p in r["evaluations"] if p != "none"})
-    curves: dict[str, dict[str, list[tuple[float, float]]]] = defaultdict(lambda: defaultdict(list))
-    for name in names:
-        pert = parse_perturbation(name)
-        for method, value in mean_over_tasks(cells_by_task(records, name)).items():
-            curves[pert.kind][method].append((pert.scalar, value))
-    nominal_rates = mean_over_tasks(cells_by_task(records, "none")) if curves else {}
-    for kind, by_method in curves.items():
-        if NOMINAL_VALUE[kind] is not None:
-            for method, value in nominal_rates.items():
-                if method in by_method:
-                    by_method[method].append((NOMINAL_VALUE[kind], value))
-    return curves
+def perturbations(records: list[dict]) -> list[str]:
+    """The perturbations the runs were evaluated under, by kind and value."""
+    names = {p for r in records for p in r["evaluations"] if p != "none"}
+    return sorted(names, key=lambda name: (parse_perturbation(name).kind, parse_perturbation(name).value))
+
+
+def paired_with_nominal(records: list[dict], perturbation: str) -> dict[str, dict[str, list[tuple[int, ...]]]]:
+    """{task: {label: [(successes, episodes) under `perturbation` and unperturbed, of each training seed evaluated
+    under both]}} at each task's largest demo count."""
+    labels = method_labels(records)
+    most = most_demos(records)
+    pairs: dict[str, dict[str, list[tuple[int, ...]]]] = defaultdict(lambda: defaultdict(list))
+    for r in records:
+        perturbed, nominal = r["evaluations"].get(perturbation), r["evaluations"].get("none")
+        if r["config"]["demos"] != most[r["task"]] or perturbed is None or nominal is None:
+            continue
+        pairs[r["task"]][labels[r["run_id"]]].append(
+            (perturbed["successes"], perturbed["episodes"], nominal["successes"], nominal["episodes"])
+        )
+    return {task: dict(row) for task, row in pairs.items()}
 
 
 def demo_counts(records: list[dict]) -> list[int]:
@@ -174,10 +179,6 @@ def demo_counts(records: list[dict]) -> list[int]:
     return counts if len(counts) > 1 else []
 
 
-def demo_series(records: list[dict]) -> dict[str, list[tuple[float, float]]]:
-    """{method: [(demonstration count, mean success rate over tasks)]} over `demo_counts`."""
-    series = defaultdict(list)
-    for n in demo_counts(records):
-        for method, value in mean_over_tasks(cells_by_task(records, "none", demos=n)).items():
-            series[method].append((n, value))
-    return series
+def demo_cells(records: list[dict]) -> dict[int, dict[str, dict[str, Cell]]]:
+    """{demonstration count: {task: {label: Cell}}} of the nominal evaluations over `demo_counts`."""
+    return {n: cells_by_task(records, "none", demos=n) for n in demo_counts(records)}

@@ -75,7 +75,3 @@ def rates(cells: dict[str, dict[str, Cell]]) -> dict[str, dict[str, float]]:
 
 def mean_over_tasks(cells: dict[str, dict[str, Cell]]) -> dict[str, float]:
     return {m: s["mean_sr"] for m, s in summarize(rates(cells)).items()}
-
-
-def series_at(series: dict[str, list[tuple[float, float]]], x: float) -> dict[str, float]:
-    return {m: y for m, points in series.items() for px, y in points if px == x}

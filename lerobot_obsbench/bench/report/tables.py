@@ -8,10 +8,10 @@ from dataclasses import dataclass, field
 
 from lerobot_obsbench.bench import aggregates
 from lerobot_obsbench.bench.machine import fingerprint
-from lerobot_obsbench.bench.report.comparisons import agreements, beats_blind, control_brackets
+from lerobot_obsbench.bench.report.comparisons import ALL_TASKS, agreements, beats_blind, control_brackets
 from lerobot_obsbench.bench.report.data import ReportData
 from lerobot_obsbench.bench.report.published import paper_row
-from lerobot_obsbench.bench.report.statistics import Cell, series_at, summarize
+from lerobot_obsbench.bench.report.statistics import Cell, mean_over_tasks, summarize
 
 Entry = tuple[str, str | None]  # a cell's text and its mark: "best", "second" or None
 Row = tuple[str, list[Entry]]  # the first column's text (a task, a method) and the row's other cells
@@ -231,6 +231,64 @@ def curve_section(data: ReportData) -> Section | None:
     )
 
 
+def _estimate(estimate: tuple | None) -> str:
+    if estimate is None:
+        return "—"
+    point, low, high = estimate
+    return f"{point:.2f} [{low:.2f}, {high:.2f}]"
+
+
+def _json(estimate: tuple | None) -> list[float] | None:
+    return None if estimate is None else [round(v, 4) for v in estimate]
+
+
+def robustness_section(data: ReportData) -> Section | None:
+    """The share of its unperturbed success each column keeps under each perturbation, over all tasks (95% intervals
+    over training seeds and episodes); every task's own in the JSON summary and the robustness plots."""
+    if not data.perturbations:
+        return None
+    labels = sorted({label for found in data.robustness.values() for label in found[ALL_TASKS]})
+    rows = [
+        (label, _plain([_estimate(data.robustness[name][ALL_TASKS].get(label)) for name in data.perturbations]))
+        for label in labels
+    ]
+    return Section(
+        "Robustness: the share of the unperturbed success kept under each perturbation (mean over tasks, 95% CI "
+        "over training seeds and episodes; 1 = as often as unperturbed)",
+        ["method", *data.perturbations],
+        rows,
+        checks={
+            "robustness": {
+                name: {task: {label: _json(e) for label, e in row.items()} for task, row in found.items()}
+                for name, found in data.robustness.items()
+            }
+        },
+    )
+
+
+def sample_efficiency_section(data: ReportData) -> Section | None:
+    """Success against the number of demonstrations: the mean over tasks per column (95% intervals over training
+    seeds and episodes); every task's own in the JSON summary and the sample-efficiency plot."""
+    if not data.demo_counts:
+        return None
+    aggregate = data.demo_curves.get(ALL_TASKS, {})
+    rows = [
+        (label, _plain([_estimate(aggregate[label].get(n)) for n in data.demo_counts])) for label in sorted(aggregate)
+    ]
+    return Section(
+        "Sample efficiency: success rate against the number of demonstrations (mean over tasks, 95% CI over training "
+        "seeds and episodes)",
+        ["method", *(f"{n} demos" for n in data.demo_counts)],
+        rows,
+        checks={
+            "sample_efficiency": {
+                task: {label: {str(n): _json(e) for n, e in curve.items()} for label, curve in row.items()}
+                for task, row in data.demo_curves.items()
+            }
+        },
+    )
+
+
 def provenance_section(data: ReportData) -> Section:
     """No table: notes on runs whose numbers another machine or an uninterrupted run would not repeat — runs
     pooled from processes with other machine facts (`machine.fingerprint`: CPU kernels, processor, library
@@ -388,7 +446,7 @@ def side_by_side_section(data: ReportData) -> Section | None:
         return None
     ours = {paper_row(t): row for t, row in data.table.items()}
     # a table of demonstration counts (Table 5): the Mean S.R. over tasks per count, as the table gives it
-    ours.update({f"{n} demos": series_at(data.demo_series, n) for n in data.demo_counts})
+    ours.update({f"{n} demos": mean_over_tasks(data.demo_cells[n]) for n in data.demo_counts})
     shared = [t for t in ours if t in data.published]
     if not shared:
         return None
