@@ -22,6 +22,7 @@ from lerobot_obsbench.encoders import available_encoders, make_encoder
 from lerobot_obsbench.spaces import AdapterConfig, ObservationAdapter
 
 dataset_reads.announce()  # shown where logging is set up before plugins are imported (lerobot-eval)
+patches.refusals_in_one_line()  # in a stock lerobot-* command: the plugin's refusals as one line, as obsbench prints
 __version__ = version("lerobot_policy_obsbench")  # one source: pyproject.toml (the distribution name)
 __all__ = [
     "AdapterConfig",

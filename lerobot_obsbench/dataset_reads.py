@@ -45,7 +45,7 @@ from lerobot_obsbench import patches
 from lerobot_obsbench.errors import ConfigError
 from lerobot_obsbench.numeric import number_from_environment
 from lerobot_obsbench.patches import LeRobotTorchFormatter, Patch
-from lerobot_obsbench.schema import SchemaError
+from lerobot_obsbench.schema import DEPTH_PREFIX, SchemaError
 
 logger = logging.getLogger(__name__)
 
@@ -230,6 +230,31 @@ class MemoryRows:
         return out
 
 
+# LeRobot's depth videos give a hole back as this many millimetres (their 12-bit log quantisation's floor)
+STOCK_DEPTH_FLOOR_MM = 10.0
+
+
+def refuse_depth_without_readings(reader: DatasetReader, rows: MemoryRows) -> None:
+    """Refuse, as the dataset loads, a read depth key none of whose frames holds a reading: the policy would train
+    on empty clouds (and stop only once it has seen enough of them); `obsbench validate` names it too."""
+    stock = set(reader._meta.depth_keys)
+    columns = {**rows.tensors, **rows.frames_of, **rows.objects}
+    for key, values in columns.items():
+        if not (key in stock or key.startswith(DEPTH_PREFIX)) or not len(values):
+            continue
+        floor = STOCK_DEPTH_FLOOR_MM if key in stock else 0
+        if torch.is_tensor(values):
+            reading = float(values.max()) > floor
+        else:  # LeRobot's 16-bit depth images, decoded as pictures
+            reading = any(float(np.asarray(frame).max()) > floor for frame in values)
+        if not reading:
+            raise SchemaError(
+                f"{key}: every frame's depth is {'a hole' if floor else '0'} (invalid): no depth was recorded, so a "
+                f"policy reading it would see nothing; `obsbench validate --root {reader.root}` lists the dataset's "
+                "problems"
+            )
+
+
 def is_numeric(column) -> bool:
     return isinstance(column, np.ndarray) and column.dtype.kind in "iuf"
 
@@ -268,6 +293,7 @@ def attach_rows(reader: DatasetReader) -> None:
     if choice == "memory" and needed <= budget:
         start = time.perf_counter()
         reader._obsbench_rows = MemoryRows(reader, columns, videos)
+        refuse_depth_without_readings(reader, reader._obsbench_rows)
         logger.info(
             f"obsbench: {reader.num_frames} frames of {len(columns) + len(videos)} read keys decoded into memory "
             f"({needed / 2**20:.0f} MiB, {time.perf_counter() - start:.1f} s); not read: "

@@ -61,8 +61,24 @@ def check_number(name: str, value, *, error: type[Exception] = ConfigError, **bo
     if hasattr(value, "item") and getattr(value, "ndim", None) == 0:  # NumPy and torch scalars
         value = value.item()
     if not _fits(value, **bounds):
-        raise error(f"{name} must be {describe(**bounds)}; got {value!r}")
+        raise error(f"{name} must be {describe(**bounds)}; got {value!r}{_written_as_text(value)}")
     return int(value) if bounds.get("whole") else value
+
+
+def _written_as_text(value) -> str:
+    """Why a number arrived as text, where it reads as one: YAML takes an exponent without a decimal point (1e-3)
+    for a string, and a quoted number is one."""
+    if not isinstance(value, str):
+        return ""
+    try:
+        float(value)
+    except ValueError:
+        return ""
+    mantissa, _, exponent = value.strip().lower().partition("e")
+    if exponent and "." not in mantissa:
+        suggestion = f"{float(mantissa):.1f}e{int(exponent)}"
+        return f" (text: YAML reads an exponent without a decimal point as a string; write {suggestion})"
+    return " (text: write the number without quotes)"
 
 
 def check_numbers(

@@ -56,6 +56,7 @@ import contextlib
 import functools
 import logging
 import os
+import sys
 import types
 from dataclasses import dataclass, field
 from importlib import metadata
@@ -293,6 +294,37 @@ def cycle_keeping_restored_rng(iterable):
             first = next(batches)
         yield first
     yield from batches
+
+
+def one_line_refusal(error: BaseException) -> str | None:
+    """The plugin's refusal behind `error`, as the one line it is written as (a DataLoader worker's refusal comes
+    back with the worker's traceback in its message: its last line is the refusal's own)."""
+    refusal = plugin_refusal(error)
+    if refusal is None:
+        return None
+    text = str(refusal)
+    if "Original Traceback" in text:
+        text = text.strip().splitlines()[-1].split(": ", 1)[-1]
+    return text
+
+
+def refusals_in_one_line(program: str | None = None) -> None:
+    """In a stock `lerobot-*` command (`program`: the command's name; None: this process's, when it is one), print
+    an uncaught refusal of the plugin as `program: error: message` instead of its traceback, as `obsbench` does;
+    every other error keeps Python's report. Processes that are no LeRobot command are left as they are."""
+    program = program or os.path.basename(sys.argv[0] if sys.argv else "")
+    if not program.startswith("lerobot-"):
+        return
+    previous = sys.excepthook
+
+    def excepthook(kind, error, traceback):
+        line = one_line_refusal(error)
+        if line is None:
+            previous(kind, error, traceback)
+        else:
+            print(f"{program}: error: {line}", file=sys.stderr)
+
+    sys.excepthook = excepthook
 
 
 def apply(lerobot_version: str | None = None) -> bool:

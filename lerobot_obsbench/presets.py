@@ -30,6 +30,7 @@ from __future__ import annotations
 from collections.abc import Collection, Mapping
 
 from lerobot_obsbench.encoders import default_encoder
+from lerobot_obsbench.errors import ConfigError
 from lerobot_obsbench.schema import POLICY_TYPES, check_choice, space_info
 
 ACT, DP = POLICY_TYPES
@@ -123,6 +124,11 @@ PRESETS: dict[str, dict[tuple[str, str], dict[str, object]]] = {
 }
 
 
+# Presets that are one policy's protocol, and what they are: the other policy type is refused, not given a part of it.
+PROTOCOL_OF = {"dp3": DP}
+PRESET_PROTOCOLS = {"dp3": "3D Diffusion Policy's protocol (DP3)"}
+
+
 def space_kinds(obs_space: str) -> tuple[str, ...]:
     """The preset keys a space takes: `all`, and `image`, `depth`, `point` where it (or a part of it) is one."""
     space = space_info(obs_space)
@@ -151,14 +157,27 @@ def preset_encoder(preset: str, obs_space: str) -> str:
     return str(_merged(preset, ACT, space_kinds(obs_space)).get("encoder") or default_encoder(obs_space))
 
 
-def preset_overrides(preset: str, policy_type: str, obs_space: str, encoder: str | None = None) -> dict[str, object]:
-    """The preset's `--policy.*` fields for a run with `encoder` (None: the preset's encoder for the space)."""
+def check_preset_policy(preset: str, policy_type: str) -> None:
+    """Refuse a preset for a policy type it does not describe (a protocol of one policy: `PROTOCOL_OF`)."""
     check_choice("preset", preset, PRESETS)
     check_choice("policy type", policy_type, POLICY_TYPES)
+    protocol = PROTOCOL_OF.get(preset)
+    if protocol is not None and policy_type != protocol:
+        others = ", ".join(p for p in PRESETS if p not in PROTOCOL_OF)
+        raise ConfigError(
+            f"preset {preset} is {PRESET_PROTOCOLS[preset]}, a {protocol} protocol; it describes no {policy_type}: "
+            f"use --policy {protocol}, or for {policy_type} one of the presets {others}"
+        )
+
+
+def preset_overrides(preset: str, policy_type: str, obs_space: str, encoder: str | None = None) -> dict[str, object]:
+    """The preset's `--policy.*` fields for a run with `encoder` (None: the preset's encoder for the space); a fused
+    space's encoder is the pair of its parts' encoders the preset names."""
+    check_preset_policy(preset, policy_type)
     encoders = (encoder or preset_encoder(preset, obs_space)).split("+")  # a fused space's: each part's fields
     fields = _merged(preset, policy_type, (*space_kinds(obs_space), *encoders))
     if space_info(obs_space).fused:
-        fields.pop("encoder", None)  # a part's encoder choice; the fused space's is the pair
+        fields["encoder"] = preset_encoder(preset, obs_space)  # a part's choice stands for the pair
     return fields
 
 

@@ -12,8 +12,9 @@ from dataclasses import MISSING, field
 
 from lerobot_obsbench.bench.specs import GridError
 from lerobot_obsbench.envs.base_task import TASKS, task_spec
+from lerobot_obsbench.envs.catalog import task_record
 from lerobot_obsbench.envs.metaworld.tasks import DEFAULT_CAMERA as METAWORLD_CAMERA
-from lerobot_obsbench.envs.metaworld.tasks import is_metaworld_name, metaworld_task
+from lerobot_obsbench.envs.metaworld.tasks import is_metaworld_name
 from lerobot_obsbench.numeric import check_number, check_numbers
 from lerobot_obsbench.presets import preset_encoder
 from lerobot_obsbench.rlbench.paper_tasks import CAMERAS as RLBENCH_CAMERAS
@@ -241,7 +242,7 @@ def _check_metaworld(values: dict, tasks: list, metaworld: list[str], name: str)
     _refuse_other_simulators(tasks, metaworld, "Meta-World", name)
     for task in metaworld:
         try:
-            metaworld_task(task)
+            task_record(task)  # (a ManiSkill name written in lower case reads as Meta-World's: named as ManiSkill's)
         except ValueError as err:
             raise GridError(f"{name}: {err}") from None
     values.setdefault("cameras", [METAWORLD_CAMERA])

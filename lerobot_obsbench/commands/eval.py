@@ -93,7 +93,14 @@ def run(args: argparse.Namespace) -> int:
             "--videos",
             inputs=[Path(args.policy_path)],
             files=[video_name(args.task, seed) for seed in eval_seeds(args.episodes)],
-            made_by=videos_made_by(args.policy_path, args.task, args.perturbation),
+            made_by=videos_made_by(
+                args.policy_path,
+                args.task,
+                args.perturbation,
+                args.episode_length,
+                args.image_size,
+                args.control_mode,
+            ),
             overwrite=args.overwrite,
         )
 

@@ -97,7 +97,8 @@ def run(args: argparse.Namespace) -> int:
         **({"grid": str(args.grid)} if args.grid else {}),
     }
     check_output_folder(out, "--out", inputs, files=REPORT_FILES, made_by=made_by, overwrite=args.overwrite)
-    if args.json:  # never over the results it summarises
+    if args.json:  # never over the results it summarises, nor over the report it writes beside
+        refuse_json_among(args.json, out, REPORT_FILES)
         check_output_file(args.json, "--json", args.overwrite, inputs, made_by)
     records = read_results(args.results) if args.results else []
     if args.results and not records:
@@ -114,6 +115,8 @@ def run(args: argparse.Namespace) -> int:
     )
     # the figures' names depend on the results: checked once the report is built, before anything is written
     check_output_folder(out, "--out", inputs, files=report["figures"], made_by=made_by, overwrite=args.overwrite)
+    if args.json:
+        refuse_json_among(args.json, out, report["figures"])
     paths = write_report(report, out, title=args.title)
     record_outputs([*paths.values(), *(out / name for name in report["figures"])], made_by)
     heading, (header, rows) = report["sections"][0]
@@ -128,6 +131,15 @@ def run(args: argparse.Namespace) -> int:
         record_outputs([args.json], made_by)
     print(f"report: {paths['markdown']}, {paths['html']}" + (f"; summary: {args.json}" if args.json else ""))
     return 0
+
+
+def refuse_json_among(summary: Path, out: Path, files) -> None:
+    """Refuse a --json path that is one of the files the report writes in `out` (the summary would replace it)."""
+    if summary.resolve().parent == out.resolve() and summary.name in files:
+        raise UsageError(
+            f"--json {summary}: the report writes {summary.name} in --out {out}, and the summary would replace it; "
+            "give the summary a name of its own (e.g. summary.json)"
+        )
 
 
 def grid_records(records: list[dict], grid_name: str) -> list[dict]:

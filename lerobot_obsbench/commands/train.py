@@ -42,7 +42,7 @@ def lerobot_train_args(items: list[str]) -> list[str]:
 
     from lerobot_obsbench.envs.configuration import env_type_name
     from lerobot_obsbench.policies.named import NAMED_POLICIES
-    from lerobot_obsbench.presets import preset_args
+    from lerobot_obsbench.presets import check_preset_policy, preset_args
 
     values, flags = {}, []
     for item in items:
@@ -59,6 +59,9 @@ def lerobot_train_args(items: list[str]) -> list[str]:
             "give policy=TYPE and env=TYPE, e.g. obsbench train policy=act_pcd env=obsbench_pickcube "
             f"(named policy types: {', '.join(NAMED_POLICIES)})"
         )
+    preset = values.pop("preset", None)
+    if preset is not None:  # a preset that does not describe the policy is refused before the dataset is looked for
+        check_preset_policy(preset, NAMED_POLICIES.get(policy, (policy,))[0])
     task = values.get("env.task") or getattr(EnvConfig.get_choice_class(env)(), "task", None)
     root = values.pop("dataset", None) or (f"data/{env_type_name(task).removeprefix('obsbench_')}" if task else None)
     if not any(f.startswith("--dataset.root") for f in flags):
@@ -70,7 +73,6 @@ def lerobot_train_args(items: list[str]) -> list[str]:
                 "(or pass dataset=DIR)"
             )
         flags += [f"--dataset.root={root}", f"--dataset.repo_id=local/{Path(root).name}"]
-    preset = values.pop("preset", None)
     command = [f"--policy.type={policy}", f"--env.type={env}", *(f"--{k}={v}" for k, v in values.items()), *flags]
     if preset is not None:
         user = _policy_values(command)  # given as policy.field=value or --policy.field=value

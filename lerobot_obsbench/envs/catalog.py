@@ -5,13 +5,24 @@ grids, the cost model): its episode budget, cameras, crop box, expert and the or
 
 from __future__ import annotations
 
-from lerobot_obsbench.envs.base_task import task_spec
+from lerobot_obsbench.envs.base_task import TASKS, TaskError, task_spec
 from lerobot_obsbench.envs.metaworld.tasks import MetaWorldTask, is_metaworld_name, metaworld_task
 
 
 def task_record(name: str):
-    """The record of the task named `name`; an unknown name is refused with its simulator's closest names."""
-    return metaworld_task(name) if is_metaworld_name(name) else task_spec(name)
+    """The record of the task named `name`; an unknown name is refused with its simulator's closest names (a ManiSkill
+    name written in lower case, which reads as a Meta-World one, with the ManiSkill name it stands for)."""
+    if not is_metaworld_name(name):
+        return task_spec(name)
+    try:
+        return metaworld_task(name)
+    except TaskError as err:
+        maniskill = [task for task in TASKS if task.lower() == name.lower()]
+        if maniskill:
+            raise TaskError(
+                f"unknown task {name!r}: ManiSkill's task names are written in CamelCase; did you mean {maniskill[0]}?"
+            ) from None
+        raise err from None
 
 
 def is_metaworld(record) -> bool:

@@ -22,13 +22,14 @@ def _eval_with_videos(root: Path) -> list[str]:
     return ["eval", "--policy.path", CHECKPOINT, "--env.task", TASK, "--episodes", "2", "--videos", str(root / "v")]
 
 
-def _videos_of(root: Path, checkpoint: str, perturbation: str | None = None) -> None:
+def _videos_of(root: Path, checkpoint: str, perturbation: str | None = None, episode_length: int | None = None) -> None:
     """The two episodes' videos as `obsbench eval` writes them (its own writer) for `checkpoint`."""
     from lerobot_obsbench.envs.evaluate import _write_videos, videos_made_by
 
     frames = [np.full((32, 32, 3), shade, np.uint8) for shade in (0, 128, 255)]
     records = {seed: {"frames": list(frames)} for seed in (0, 1)}
-    _write_videos(root / "v", TASK, [0, 1], records, videos_made_by(checkpoint, TASK, perturbation), fps=20)
+    made_by = videos_made_by(checkpoint, TASK, perturbation, episode_length)
+    _write_videos(root / "v", TASK, [0, 1], records, made_by, fps=20)
 
 
 def eval_videos_over_files_it_did_not_write(root: Path) -> list[str]:
@@ -46,6 +47,12 @@ def eval_videos_over_another_checkpoints_videos(root: Path) -> list[str]:
 
 def eval_videos_over_another_perturbations_videos(root: Path) -> list[str]:
     _videos_of(root, CHECKPOINT, perturbation="camera_yaw:10")
+    return _eval_with_videos(root)
+
+
+def eval_videos_over_another_episode_budgets_videos(root: Path) -> list[str]:
+    """Used to replace them when only --env.episode_length differed."""
+    _videos_of(root, CHECKPOINT, episode_length=20)
     return _eval_with_videos(root)
 
 
@@ -69,6 +76,11 @@ def report_json_over_a_file_it_did_not_write(root: Path) -> list[str]:
     """Used to be replaced by the summary (exit 0)."""
     (root / "summary.json").write_text('{"my": "notes"}\n')
     return ["report", str(_results(root)), "--out", str(root / "report"), "--json", str(root / "summary.json")]
+
+
+def report_json_over_the_report_it_writes(root: Path) -> list[str]:
+    """Used to write report.md, then replace it with the summary (exit 0)."""
+    return ["report", str(_results(root)), "--out", str(root / "report"), "--json", str(root / "report" / "report.md")]
 
 
 def report_out_over_a_report_it_did_not_write(root: Path) -> list[str]:
@@ -129,9 +141,11 @@ ROWS: list = [
     (eval_videos_over_files_it_did_not_write, ["--videos", f"{TASK}_seed0.mp4", "not this command's own output"]),
     (eval_videos_over_another_checkpoints_videos, ["--videos", f"{TASK}_seed0.mp4, {TASK}_seed1.mp4", "--overwrite"]),
     (eval_videos_over_another_perturbations_videos, ["--videos", "not this command's own output", "--overwrite"]),
+    (eval_videos_over_another_episode_budgets_videos, ["--videos", "not this command's own output", "--overwrite"]),
     (eval_videos_over_its_own_video_edited_since, ["--videos", f"already holds {TASK}_seed1.mp4,", "--overwrite"]),
     (report_json_over_a_file_it_did_not_write, ["--json", "summary.json already exists and is not this command's"]),
     (report_out_over_a_report_it_did_not_write, ["--out", "already holds report.md", "add --overwrite"]),
+    (report_json_over_the_report_it_writes, ["--json", "the report writes report.md in --out", "summary.json"]),
     (attach_calibration_over_a_truncated_file, ["obsbench_cameras.json: cannot be read as JSON", REPLACE]),
     (attach_calibration_over_an_empty_file, ["obsbench_cameras.json: cannot be read as JSON", REPLACE]),
     (attach_calibration_over_a_list, ['expected {"version": 1, "cameras": {name: calibration}}, found []', REPLACE]),

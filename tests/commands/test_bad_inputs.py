@@ -470,12 +470,53 @@ def replay_a_dataset_not_recorded_by_demos(root: Path) -> list[str]:
     return ["replay", "--root", str(out)]
 
 
+def _demos_with_actions(root: Path, seeds: int = 2, parquet: bytes | None = None) -> Path:
+    """A demonstrations folder: the sidecar naming `seeds` seeds, and one data file of two one-step episodes."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    out = _finished_demos(root, seeds=list(range(100000, 100000 + seeds)))
+    (out / "data" / "chunk-000").mkdir(parents=True)
+    data = out / "data" / "chunk-000" / "file-000.parquet"
+    table = {"action": [[0.0] * 7, [0.0] * 7], "episode_index": [0, 1], "frame_index": [0, 0]}
+    pq.write_table(pa.table(table), data)
+    if parquet is not None:
+        data.write_bytes(data.read_bytes()[: len(parquet)])
+    return out
+
+
+def replay_a_cut_sidecar(root: Path) -> list[str]:
+    """Used to end in json's traceback."""
+    out = _demos_with_actions(root)
+    (out / "obsbench_demos.json").write_text('{"task": "PushCube-v1", "seeds": [1000')
+    return ["replay", "--root", str(out)]
+
+
+def replay_a_cut_data_file(root: Path) -> list[str]:
+    """Used to end in pyarrow's traceback."""
+    return ["replay", "--root", str(_demos_with_actions(root, parquet=b"PAR1" * 8))]
+
+
+def replay_more_episodes_than_seeds(root: Path) -> list[str]:
+    """Used to end in an IndexError after the simulator started."""
+    return ["replay", "--root", str(_demos_with_actions(root, seeds=1))]
+
+
 def encoders_of_a_typo(root: Path) -> list[str]:
     return ["encoders", "--obs-space", "pointclould"]
 
 
 def preset_of_a_typo(root: Path) -> list[str]:
     return ["preset", "--preset", "papper"]
+
+
+def preset_of_another_policys_protocol(root: Path) -> list[str]:
+    """Used to print an empty line (pointcloud) or image flags for ACT without saying dp3 is Diffusion Policy's."""
+    return ["preset", "--preset", "dp3", "--policy", "obs_act", "--obs-space", "pointcloud"]
+
+
+def train_with_another_policys_protocol(root: Path) -> list[str]:
+    return ["train", "policy=act_pcd", "env=obsbench_pickcube", "preset=dp3", f"dataset.root={root}", "--dry-run"]
 
 
 def demos_of_a_metaworld_typo(root: Path) -> list[str]:
@@ -567,8 +608,16 @@ ROWS = [
     (view_without_a_dataset_or_camera, ["obsbench view: error: give --root DATASET, or --serial SERIAL"]),
     (refine_one_camera, ["obsbench refine-cameras: error: give two or more cameras"]),
     (replay_a_dataset_not_recorded_by_demos, ["obsbench replay: error:", "no obsbench_demos.json", "obsbench demos"]),
+    (replay_a_cut_sidecar, ["obsbench_demos.json: cannot be read as JSON", "record the demonstrations again"]),
+    (replay_a_cut_data_file, ["file-000.parquet: cannot be read as a LeRobot data file", "obsbench demos"]),
+    (replay_more_episodes_than_seeds, ["names 1 seeds for 2 recorded episodes", "record the demonstrations again"]),
     (encoders_of_a_typo, ["argument --obs-space: invalid choice: 'pointclould'"]),
     (preset_of_a_typo, ["argument --preset: invalid choice: 'papper'"]),
+    (
+        preset_of_another_policys_protocol,
+        ["preset dp3 is 3D Diffusion Policy's protocol", "use --policy obs_diffusion"],
+    ),
+    (train_with_another_policys_protocol, ["preset dp3 is 3D Diffusion Policy's protocol", "describes no obs_act"]),
     *bad_inputs_validate.ROWS,
     *bad_inputs_outputs.ROWS,
     *bad_inputs_grid.ROWS,

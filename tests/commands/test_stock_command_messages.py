@@ -109,3 +109,64 @@ def test_the_installed_lerobot_train_prints_the_reason():
     )
     assert proc.returncode == 1
     assert "error: `policy`: unknown augmentation 'random_shiftt'" in proc.stderr, proc.stderr[-2000:]
+
+
+@pytest.mark.slow
+def test_a_refusal_while_stock_lerobot_train_runs_is_one_line_and_comes_before_any_step(tmp_path, synthetic_module):
+    """Refusals raised once the command runs (the dataset's loading, the first step) used to end in a traceback;
+    an all-zero depth recording used to train 15 steps before the adapter stopped it. Now stock lerobot-train
+    refuses it as the dataset loads, in the one line `obsbench` would print."""
+    import numpy as np
+
+    from lerobot_obsbench.presets import preset_args
+
+    key = "observation.depth.base_camera"
+
+    def zero_depth(episode, index, frame):
+        return {**frame, key: np.zeros_like(frame[key])}
+
+    root = synthetic_module.write_dataset(tmp_path / "d", episodes=2, frames=6, size=32, seed=0, frame_hook=zero_depth)
+    proc = subprocess.run(
+        [
+            str(Path(sys.executable).parent / "lerobot-train"),
+            *f"{ACT_ON}pointcloud --policy.device=cpu --policy.push_to_hub=false".split(),
+            *preset_args("tiny", "obs_act", "pointcloud"),
+            "--policy.workspace=[-0.5,0.5,-0.5,0.5,0.005,0.5]",
+            f"--dataset.root={root}",
+            "--dataset.repo_id=local/d",
+            "--steps=20",
+            "--batch_size=2",
+            "--num_workers=0",
+            "--wandb.enable=false",
+            f"--output_dir={tmp_path / 'out'}",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        stdin=subprocess.DEVNULL,
+        env={**__import__("os").environ, "HF_HUB_OFFLINE": "1"},
+    )
+    assert proc.returncode == 1, proc.stderr[-2000:]
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith(f"lerobot-train: error: {key}: every frame's depth is 0 (invalid)"), proc.stderr[-2000:]
+    assert "obsbench validate --root" in last and "Traceback" not in proc.stderr
+    assert "step:" not in proc.stdout + proc.stderr  # refused before the first optimizer step
+
+
+def test_only_the_plugins_own_refusals_lose_their_traceback():
+    code = (
+        "import sys; sys.argv = ['lerobot-eval']; import lerobot_obsbench\n"
+        "from lerobot_obsbench.schema import SchemaError\n"
+        "if sys.argv[1:] == []: raise RuntimeError('first step') from SchemaError('cameras: the policy reads x')\n"
+    )
+    refused = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert refused.returncode == 1 and refused.stderr.strip().splitlines() == [
+        "lerobot-eval: error: cameras: the policy reads x"
+    ]
+    other = subprocess.run(
+        [sys.executable, "-c", code.replace("from SchemaError('cameras: the policy reads x')", "")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert other.returncode == 1 and "Traceback" in other.stderr and "RuntimeError: first step" in other.stderr

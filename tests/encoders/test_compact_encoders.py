@@ -334,8 +334,10 @@ def test_policy_configs_refuse_what_the_compact_encoders_do_not_take():
         ObsDiffusionConfig(device="cpu", obs_space="rgbd", encoder="spatial_softmax", zero_init_extra_channels=True)
 
 
-@pytest.mark.parametrize("preset", ["paper", "cpu", "dp3", "tiny"])
-@pytest.mark.parametrize("policy_type", ["obs_act", "obs_diffusion"])
+@pytest.mark.parametrize(
+    ("preset", "policy_type"),
+    [(p, t) for p in ("paper", "cpu", "tiny") for t in ("obs_act", "obs_diffusion")] + [("dp3", "obs_diffusion")],
+)
 def test_every_preset_configures_every_registered_encoder(preset, policy_type):
     """A preset keys fields by the encoders that take them: each (space, encoder) pair gets a config its policy
     accepts (a field the encoder would ignore is refused, so this fails on a preset that sets one)."""

@@ -117,9 +117,18 @@ def test_the_schemas_own_dataset_lists_its_scanned_arrays_and_decoded_videos(tin
     assert "read    observation.images.base_camera: 72 of 72 frames decoded (video, 1 file)" in out
 
 
-def test_training_on_depth_without_millimetres_names_the_validate_check(storage, tmp_path, capsys):
-    """The empty-cloud stop in training points at the check that finds the same data before training."""
+def test_training_on_depth_without_millimetres_names_the_validate_check(storage, tmp_path, capsys, monkeypatch):
+    """Depth without a reading is refused as the dataset loads (the default reader holds every frame), naming the
+    check that finds the same data before training; read frame by frame, the empty-cloud stop in training points at
+    the same check."""
+    from lerobot_obsbench import dataset_reads
+
     root = calibrated_stock_dataset(tmp_path / "koch", video=storage == "video", depth=zero_depth, frames=4)
+    with pytest.raises(
+        SchemaError, match=r"_depth: every frame's depth is .* no depth was recorded.*obsbench validate"
+    ):
+        training_setup("obs_act", "pointcloud", root, named="act_pcd", workspace=WORKSPACE)
+    monkeypatch.setenv(dataset_reads.READER_ENV, "filtered")
     policy, _, _, dataset = training_setup("obs_act", "pointcloud", root, named="act_pcd", workspace=WORKSPACE)
     adapter = policy.model.observation.adapter.train()  # the policy's observations, as its forward makes them
     batch = policy.calibrated_depth(next(iter(torch.utils.data.DataLoader(dataset, batch_size=len(dataset)))))

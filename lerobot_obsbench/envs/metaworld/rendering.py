@@ -78,9 +78,12 @@ _open_renderers: weakref.WeakSet = weakref.WeakSet()
 def open_renderer(model, height: int, width: int):
     """A `mujoco.Renderer`, closed when the env closes it or, at the latest, when the interpreter exits: before
     MuJoCo terminates its EGL display (a renderer freed after that complains at exit), since this exit hook is
-    registered after MuJoCo's and exit hooks run last first."""
+    registered after MuJoCo's and exit hooks run last first. The model's offscreen framebuffer (Meta-World's scene
+    asks for 640 x 480) is widened to the image asked for, which MuJoCo would otherwise refuse."""
     import mujoco
 
+    visual = model.vis.global_
+    visual.offwidth, visual.offheight = max(visual.offwidth, width), max(visual.offheight, height)
     renderer = mujoco.Renderer(model, height, width)
     if not _open_renderers:
         atexit.unregister(_close_open_renderers)
