@@ -111,7 +111,10 @@ def held_out_diagnostics(checkpoint: str | Path, dataset: str | Path, episodes: 
     adapter = policy.observation_encoder().adapter  # in eval mode, as load_policy returns the policy
     cam = config.cameras[0] if config.cameras else None  # the controls read no camera
     loader = torch.utils.data.DataLoader(data, batch_size=32, shuffle=False)
-    with torch.inference_mode():
+    # Diffusion Policy's open-loop actions are sampled: from a fixed seed, so the figures do not depend on what the
+    # process drew before (another unit in the same worker, another engine)
+    with torch.random.fork_rng(devices=range(torch.cuda.device_count())), torch.inference_mode():
+        torch.manual_seed(0)
         for batch in loader:
             batch = pre(batch)
             errors.append(policy.open_loop_error(batch).cpu())

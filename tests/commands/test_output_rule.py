@@ -91,7 +91,8 @@ def _blind_checkpoint(root: Path) -> Path:
 @pytest.mark.slow
 def test_eval_writes_its_videos_again_and_another_evaluations_only_with_overwrite(tmp_path, capsys):
     """Real evaluations into one --videos folder: the same one again is allowed (its videos are rewritten), the
-    same checkpoint under a perturbation is refused before the simulator starts, and --overwrite lets it write."""
+    same checkpoint with another episode budget is refused before the simulator starts (it used to replace them),
+    and --overwrite lets it write."""
     checkpoint, videos = _blind_checkpoint(tmp_path), tmp_path / "videos"
     argv = ["eval", "--policy.path", str(checkpoint), "--env.task", rows.TASK, "--episodes", "2"]
     argv += ["--env.episode_length", "3", "--eval.batch_size", "1", "--videos", str(videos)]
@@ -104,11 +105,11 @@ def test_eval_writes_its_videos_again_and_another_evaluations_only_with_overwrit
     assert (videos / names[0]).stat().st_size > 0
     capsys.readouterr()
 
-    perturbed = [*argv, "--env.perturbation", "camera_yaw:10"]
+    longer = [*argv[: argv.index("3")], "4", *argv[argv.index("3") + 1 :]]  # --env.episode_length 4
     before = {name: (videos / name).read_bytes() for name in names}
-    assert main(perturbed) == 2
+    assert main(longer) == 2
     assert "--videos" in capsys.readouterr().err
     assert {name: (videos / name).read_bytes() for name in names} == before
-    assert main([*perturbed, "--overwrite"]) == 0
+    assert main([*longer, "--overwrite"]) == 0
     record = json.loads((videos / OUTPUTS_RECORD).read_text())["files"]
-    assert all(record[name]["perturbation"] == "camera_yaw:10" for name in names)
+    assert all(record[name]["episode_length"] == 4 for name in names)

@@ -1,5 +1,6 @@
 """Stock `lerobot-train` trains every (policy x observation space) pair on a dataset written by non-plugin code,
-offline, on CPU, and writes a checkpoint — no plugin flag, no --policy.repo_id."""
+offline, on CPU, and writes a checkpoint — no plugin flag, no --policy.repo_id (the rgb and point-cloud pairs of both
+policies: the grid of tests/bench/test_bench_run.py; the others here)."""
 
 from __future__ import annotations
 
@@ -13,11 +14,11 @@ import pytest
 
 from lerobot_obsbench.cli import main
 from lerobot_obsbench.commands.train import lerobot_train_args
-from lerobot_obsbench.presets import PRESETS, preset_args, preset_encoder, preset_overrides
+from lerobot_obsbench.presets import PRESETS, PROTOCOL_OF, preset_args, preset_encoder, preset_overrides
 from lerobot_obsbench.schema import POLICY_TYPES, available_spaces, space_info
 
 BIN = Path(sys.executable).parent
-SPACES = ["rgb", "depth", "rgbd", "pointmap", "pointcloud"]
+SPACES = ["depth", "rgbd", "pointmap"]  # rgb and pointcloud: the bench grid trains both policies on them
 
 
 def policy_fields(command: list[str]) -> dict[str, list[str]]:
@@ -39,6 +40,7 @@ def preset_cases() -> list[tuple[str, str, str, str]]:
         (preset, policy, space, encoder)
         for preset in PRESETS
         for policy in POLICY_TYPES
+        if PROTOCOL_OF.get(preset, policy) == policy  # a preset of one policy's protocol describes no other
         for space in available_spaces()
         for encoder in ([preset_encoder(preset, space)] if space_info(space).fused else available_encoders(space))
     ]
@@ -125,51 +127,6 @@ def test_obsbench_preset_prints_the_users_encoder_where_the_preset_sets_one(caps
     assert policy_fields(capsys.readouterr().out.split())["encoder"] == ["spatial_softmax"]
 
 
-@pytest.mark.slow
-def test_obsbench_train_trains_the_users_encoder_over_the_presets(tiny_dataset, tmp_path, monkeypatch):
-    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
-    monkeypatch.setenv("HF_DATASETS_OFFLINE", "1")
-    out = tmp_path / "run"
-    argv = ["train", "policy=obs_act", "env=obsbench_pushcube", f"dataset={tiny_dataset}", "preset=tiny"]
-    argv += ["policy.obs_space=rgb", "policy.encoder=spatial_softmax", "policy.device=cpu", "--batch_size=2"]
-    argv += ["--steps=2", "--save_freq=2", "--num_workers=0", "--wandb.enable=false", f"--output_dir={out}"]
-    assert main(argv) == 0
-    config = json.loads((out / "checkpoints" / "last" / "pretrained_model" / "config.json").read_text())
-    assert config["encoder"] == "spatial_softmax" and config["dim_model"] == 32  # the user's encoder, tiny's sizes
-
-
-@pytest.mark.slow
-def test_lerobot_train_reports_a_space_the_dataset_cannot_serve(tmp_path, synthetic_module):
-    # a dataset recorded without depth: rgb works, pointcloud must fail early and name the missing key
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
-    features = synthetic_module.features(32, "base_camera", use_video=False)
-    features = {k: v for k, v in features.items() if "depth" not in k}
-    ds = LeRobotDataset.create(
-        "local/rgb_only", fps=10, features=features, root=tmp_path / "rgb_only", use_videos=False
-    )
-    import numpy as np
-
-    for _ in range(2):
-        for _ in range(4):
-            ds.add_frame(
-                {
-                    "observation.images.base_camera": np.zeros((32, 32, 3), np.uint8),
-                    "observation.intrinsics.base_camera": np.eye(3, dtype=np.float32),
-                    "observation.cam2world.base_camera": np.eye(4, dtype=np.float32),
-                    "observation.state": np.zeros(15, np.float32),
-                    "observation.environment_state": np.zeros(3, np.float32),
-                    "action": np.zeros(7, np.float32),
-                    "task": "t",
-                }
-            )
-        ds.save_episode()
-    ds.finalize()
-    proc = lerobot_train(tmp_path / "rgb_only", tmp_path / "run", "obs_act", "pointcloud")
-    assert proc.returncode != 0
-    assert "observation.depth.<cam>" in proc.stderr and "obs_space='pointcloud' needs" in proc.stderr
-
-
 def _zero_depth(frames):
     """A frame hook blanking the depth of the listed (episode, frame) pairs: a RealSense dropout."""
 
@@ -216,9 +173,7 @@ def test_training_on_mostly_empty_frames_stops_early(tmp_path, synthetic_module)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(
-    "named, base, space", [("act_pcd", "obs_act", "pointcloud"), ("dp_rgb", "obs_diffusion", "rgb")]
-)
+@pytest.mark.parametrize("named, base, space", [("dp_rgb", "obs_diffusion", "rgb")])  # act_pcd: test_stock_depth.py
 def test_a_named_type_trains_and_loads_back_under_its_name(tiny_dataset, tmp_path, named, base, space):
     import torch
 

@@ -243,7 +243,8 @@ def test_the_episode_budget_is_the_envs_even_beyond_metaworlds_own_500_steps():
 @pytest.mark.slow
 def test_demonstrations_record_validate_view_train_and_evaluate_with_stock_lerobot(tmp_path):
     """`obsbench demos` on a Meta-World task: Meta-World's expert's successful episodes in the schema (80 fps, the
-    oracle's values named), every space served (`obsbench validate`), a rerun finds them recorded, `obsbench view`
+    oracle's values named), every space served (`obsbench validate`), a rerun finds them recorded, `obsbench replay`
+    replays them open-loop to their recorded success, `obsbench view`
     writes the frame's cloud as .ply inside the crop box; then stock lerobot-train of the plugin's point-cloud ACT
     on them and stock lerobot-eval of that checkpoint on `--env.type=obsbench_metaworld`."""
     import json
@@ -261,6 +262,8 @@ def test_demonstrations_record_validate_view_train_and_evaluate_with_stock_lerob
     assert {schema.image_key("corner2"), schema.depth_key("corner2")} <= set(info["features"])
     assert main(["validate", "--root", str(out)]) == 0
     assert main(["demos", "--task", TASK, "--episodes", "2", "--out", str(out), "--image-size", "32"]) == 0
+    # replayed open-loop in Meta-World (it used to look the task up among ManiSkill's: "Unknown task")
+    assert main(["replay", "--root", str(out)]) == 0
     box = [-0.6, 0.6, 0.2, 1.0, -0.01, 0.6]
     ply = tmp_path / "frame.ply"
     view = ["view", "--root", str(out), "--frame", "10", "--out", str(tmp_path / "v.rrd"), "--ply", str(ply)]
@@ -317,23 +320,141 @@ def test_demonstrations_record_validate_view_train_and_evaluate_with_stock_lerob
 
 @pytest.mark.slow
 def test_a_metaworld_grid_runs_from_nothing_to_its_report(tmp_path):
-    """`obsbench run` on a Meta-World grid: demonstrations, the controls and a point-cloud policy (DP3 on xyz
-    points, so its env renders depth alone) trained, each evaluated on the task's test seeds, and the report reads
-    the results."""
+    """`obsbench run` on a Meta-World grid: demonstrations, the blind control and a point-cloud policy (DP3 on xyz
+    points, so its env renders depth alone) trained, each evaluated on the task's test seeds, the point-cloud one also
+    with the camera moved and with a depth sensor's noise, and the report reads the results and shows the share of
+    its success kept."""
     import json
 
     from lerobot_obsbench.cli import main
 
     grid = tmp_path / "mw.yaml"
     grid.write_text(
-        "tasks: [drawer-open-v3]\nobs_spaces: [none, state, pointcloud]\npreset: tiny\nseeds: [1000]\ndemos: [2]\n"
-        "batch_size: 4\nsteps: 2\ncheckpoints: 1\nimage_size: 32\neval_episodes: 1\nepisode_length: 5\n"
+        "tasks: [drawer-open-v3]\nobs_spaces: [none, pointcloud]\npreset: tiny\nseeds: [1000]\ndemos: [2]\n"
+        "batch_size: 4\nsteps: 2\ncheckpoints: 1\nimage_size: 32\neval_episodes: 2\nepisode_length: 5\n"
         "encoders: {pointcloud: [dp3]}\nspace_overrides: {pointcloud: {point_features: xyz}}\n"
+        "perturbations: [camera_yaw:5, depth_noise:1]\nperturbed_episodes: 1\n"
     )
     out = tmp_path / "out"
-    assert main(["run", str(grid), "--out", str(out), "--workers", "1"]) == 0
+    assert main(["run", str(grid), "--out", str(out), "--workers", "2", "--threads", "1"]) == 0
     records = [json.loads(line) for line in (out / "results.jsonl").read_text().splitlines()]
-    methods = {r["method"] for r in records if r["kind"] == "eval" and r["split"] == "test"}
-    assert methods == {"obs_act/none/blind", "obs_act/state/oracle", "obs_act/pointcloud/dp3"}
+    tests = [r for r in records if r["kind"] == "eval" and r["split"] == "test"]
+    assert {r["method"] for r in tests} == {"obs_act/none/blind", "obs_act/pointcloud/dp3"}
+    perturbed = {r["perturbation"]: r for r in tests if r["method"] == "obs_act/pointcloud/dp3"}
+    assert set(perturbed) == {"none", "camera_yaw:5", "depth_noise:1"}
+    assert perturbed["none"]["episodes"] == 2 and perturbed["depth_noise:1"]["per_seed"]["seeds"] == [0]
     assert main(["report", str(out / "results.jsonl"), "--out", str(tmp_path / "report")]) == 0
-    assert "drawer-open-v3" in (tmp_path / "report" / "report.md").read_text()
+    md = (tmp_path / "report" / "report.md").read_text()
+    assert "drawer-open-v3" in md and "Robustness: the share of the unperturbed success kept" in md
+
+
+# ---- zero-shot perturbations (envs/metaworld/perturbations.py): each changes what it says and nothing else ----------
+
+
+def _perturbed_frame(perturbation: str | None, seed: int = 3, size: int = 64):
+    env = MetaWorldEnv("reach-v3", cameras=["corner2"], image_size=size, perturbation=perturbation)
+    try:
+        env.reset(seed=seed)
+        return env.schema_frame(), env.segmentation("corner2"), env
+    finally:
+        env.close()
+
+
+def test_a_moved_camera_orbits_its_look_at_point_and_its_cloud_still_lies_on_the_table():
+    """camera_yaw / camera_pitch: the frames change, the intrinsics and the objects do not; the camera keeps its
+    distance to its look-at point on the table top and still looks at it; its depth, unprojected with its new pose,
+    puts the table's pixels on the table's surface within the millimetre depth is rounded to."""
+    import torch
+
+    from lerobot_obsbench.envs.metaworld.perturbations import look_at_point, table_top
+
+    nominal, _, env = _perturbed_frame(None)
+    model, data = env._env.model, env._env.data
+    top, height = table_top(model, data)
+    pose = nominal[schema.cam2world_key("corner2")]
+    target = pose[:3, 3] + pose[:3, 2] * (height - pose[2, 3]) / pose[2, 2]  # OpenCV's z is the optical axis
+    for name in ("camera_yaw:10", "camera_pitch:10", "camera_yaw:-5"):
+        frame, shows, moved = _perturbed_frame(name)
+        moved_pose = frame[schema.cam2world_key("corner2")]
+        assert np.abs(frame[schema.image_key("corner2")].astype(int) - nominal[schema.image_key("corner2")]).mean() > 5
+        assert np.array_equal(frame[schema.intrinsics_key("corner2")], nominal[schema.intrinsics_key("corner2")])
+        assert np.array_equal(frame[schema.PRIVILEGED_STATE_KEY], nominal[schema.PRIVILEGED_STATE_KEY])
+        assert np.linalg.norm(moved_pose[:3, 3] - pose[:3, 3]) > 0.05
+        assert np.linalg.norm(moved_pose[:3, 3] - target) == pytest.approx(
+            np.linalg.norm(pose[:3, 3] - target), abs=1e-5
+        )
+        hit = moved_pose[:3, 3] + moved_pose[:3, 2] * (height - moved_pose[2, 3]) / moved_pose[2, 2]
+        assert np.linalg.norm(hit - target) < 1e-4  # still looking at the same point
+        mujoco_rotation = moved_pose[:3, :3] @ np.diag([-1.0, 1.0, -1.0])  # corner2's image is turned (TURNED_CAMERAS)
+        assert look_at_point(moved_pose[:3, 3], mujoco_rotation.flatten(), height) == pytest.approx(target, abs=1e-4)
+        depth = frame[schema.depth_key("corner2")][..., 0].astype(np.float32) / 1000
+        world = geometry.transform_points(
+            geometry.unproject_depth(
+                torch.from_numpy(depth)[None], torch.from_numpy(frame[schema.intrinsics_key("corner2")])[None]
+            ),
+            torch.from_numpy(moved_pose)[None],
+        )[0].numpy()
+        on_table = (shows == top) & (depth > 0)
+        assert on_table.sum() > 300
+        distances = _surface_distance(moved._env.model, moved._env.data, top, world[on_table])
+        assert distances.max() < 1.5e-3  # on the table's box (its top, and a side the moved camera sees)
+        assert np.median(np.abs(world[on_table][:, 2] - height)) < 1e-3  # most on its top
+        with pytest.raises(Exception, match="look down at the table"):
+            look_at_point(np.zeros(3), np.diag([1.0, -1.0, -1.0]).flatten(), 1.0)  # looking up: no point on the table
+
+
+def test_light_and_background_change_the_colour_only_where_they_say():
+    nominal, shows, env = _perturbed_frame(None)
+    rgb = nominal[schema.image_key("corner2")].astype(float)
+    from lerobot_obsbench.envs.metaworld.perturbations import background_geoms
+
+    surfaces = np.isin(shows, background_geoms(env._env.model, env._env.data))
+    for name, darker in (("light:0.03", True), ("light:1.2", False)):
+        frame, _, _ = _perturbed_frame(name)
+        lit = frame[schema.image_key("corner2")].astype(float)
+        assert (lit.mean() < 0.5 * rgb.mean()) if darker else (lit.mean() > 1.3 * rgb.mean())
+        for key in (schema.depth_key("corner2"), schema.cam2world_key("corner2"), schema.PRIVILEGED_STATE_KEY):
+            assert np.array_equal(frame[key], nominal[key])
+    frame, background_shows, _ = _perturbed_frame("background:1,0.2,0.2")
+    coloured = frame[schema.image_key("corner2")].astype(float)
+    assert np.array_equal(background_shows, shows)  # the same geoms in the same pixels
+    assert np.array_equal(frame[schema.depth_key("corner2")], nominal[schema.depth_key("corner2")])
+    red = coloured[surfaces]
+    assert (red[:, 0] > 1.5 * red[:, 1]).mean() > 0.95  # the table and floor are red now, which they were not
+    assert (rgb[surfaces][:, 0] > 1.5 * rgb[surfaces][:, 1]).mean() < 0.5
+    change = np.abs(coloured - rgb).mean(axis=-1)
+    assert change[surfaces].mean() > 4 * change[~surfaces & (shows >= 0)].mean()  # the rest keeps its colour
+
+
+def test_depth_noise_changes_the_depth_alone_and_an_episode_repeats_its_noise():
+    nominal, _, _ = _perturbed_frame(None)
+    first, _, _ = _perturbed_frame("depth_noise:2")
+    again, _, _ = _perturbed_frame("depth_noise:2")
+    other, _, _ = _perturbed_frame("depth_noise:2", seed=4)
+    key = schema.depth_key("corner2")
+    for k in (schema.image_key("corner2"), schema.cam2world_key("corner2"), schema.PRIVILEGED_STATE_KEY):
+        assert np.array_equal(first[k], nominal[k])
+    assert not np.array_equal(first[key], nominal[key]) and np.array_equal(first[key], again[key])
+    holes = (first[key] == 0) & (nominal[key] > 0)
+    assert holes.sum() > 0.01 * holes.size
+    nominal_other, _, _ = _perturbed_frame(None, seed=4)
+    assert not np.array_equal(other[key] - nominal_other[key], first[key] - nominal[key])
+
+
+def test_a_perturbation_meta_world_does_not_apply_is_refused_before_anything_slow():
+    started = time.perf_counter()
+    with pytest.raises(Exception, match=r"noise:16: Meta-World tasks do not support noise perturbations; they take"):
+        MetaWorldEnv(TASK, perturbation="noise:16")
+    assert time.perf_counter() - started < 1
+
+
+def test_an_image_larger_than_metaworlds_framebuffer_renders_at_its_size():
+    """Meta-World's scene asks MuJoCo for a 640 x 480 offscreen framebuffer; a larger image used to pass every check
+    and stop in MuJoCo with a traceback advising to edit the model's XML (demos, grids, lerobot-eval alike)."""
+    env = MetaWorldEnv("reach-v3", cameras=["corner2"], image_size=672)
+    try:
+        obs, _ = env.reset(seed=0)
+        assert obs["pixels"]["corner2"].shape == (672, 672, 3)
+        assert obs["robot_state"]["depth.corner2"].shape == (672, 672, 1)
+    finally:
+        env.close()

@@ -623,7 +623,7 @@ def test_demos_for_every_task_with_an_expert(task, tmp_path):
 
     from lerobot_obsbench.datasets.sim_demos import record_demos
 
-    episodes = 1 if task in ("PegInsertionSide-v1", "PlugCharger-v1") else 2  # slow, partly failing experts
+    episodes = 1
     info = record_demos(task, episodes, tmp_path / task, image_size=32)
     ds = LeRobotDataset(f"local/{task}", root=tmp_path / task)
     assert ds.meta.total_episodes == episodes and len(info["seeds"]) == episodes
@@ -902,7 +902,8 @@ def test_each_tasks_episode_budget_holds_twice_its_experts_mean_episode(task):
     spec = task_spec(task)
     env = ObsBenchEnv(task, cameras=(), image_size=32, episode_length=3 * spec.max_steps)
     lengths = []
-    for seed in range(100_000, 100_008):
+    seeds = 8 if spec.expert_success_rate < 0.5 else 4  # a partly failing expert needs more to succeed at all
+    for seed in range(100_000, 100_000 + seeds):
         env.reset(seed=seed)
         expert, steps, info = spec.make_expert(env), 0, {"is_success": False}
         while not info["is_success"] and (action := expert.act()) is not None and steps < 3 * spec.max_steps:
@@ -911,7 +912,7 @@ def test_each_tasks_episode_budget_holds_twice_its_experts_mean_episode(task):
         if info["is_success"]:
             lengths.append(steps)
     env.close()
-    assert lengths, f"{task}: the expert succeeded on none of 8 seeds"
+    assert lengths, f"{task}: the expert succeeded on none of {seeds} seeds"
     assert spec.max_steps >= 2 * np.mean(lengths) and spec.max_steps >= max(lengths), (spec.max_steps, lengths)
 
 

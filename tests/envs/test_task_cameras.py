@@ -1,6 +1,7 @@
-"""Each task of the cpu-suite and cpu-ranking grids sees its objects: at every episode start over 50 test seeds the
-objects lie in the task's point-cloud crop box and show enough pixels in its camera's 64² frame; and a camera no
-policy reads is taken off the scene. Needs the simulator (scripts/setup_system.sh): marked slow."""
+"""Each task of the cpu-suite and cpu-ranking grids sees its objects: at every episode start over the 25 test seeds
+the grids evaluate, the objects lie in the task's point-cloud crop box and show enough pixels in its camera's 64²
+frame; and a camera no policy reads is taken off the scene. Needs the simulator (scripts/setup_system.sh): marked
+slow."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ pytestmark = pytest.mark.slow
 
 SUITE = sorted({*load_grid("cpu-suite").tasks, *load_grid("cpu-ranking").tasks})
 SIZE = 64
-EPISODES = 50
+EPISODES = 25  # the grids' eval_episodes
 # at least a 3x3 patch of each object in the frame, and a bounding sphere at least 4 pixels across
 MIN_PIXELS = 9
 MIN_DIAMETER = 4.0
