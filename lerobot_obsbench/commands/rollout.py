@@ -146,7 +146,6 @@ def return_to_rest(robot, rest: dict, seconds: float, fps: int) -> None:
 def rollout(robot, config: RolloutConfig, operator: Operator | None = None) -> dict:
     """Run `config.episodes` episodes; returns (and writes to config.out) the results."""
     from lerobot.utils.io_utils import write_video
-    from lerobot.utils.robot_utils import precise_sleep
 
     operator = operator or Operator(events=common.keyboard_events())
     events = operator.events
@@ -172,28 +171,13 @@ def rollout(robot, config: RolloutConfig, operator: Operator | None = None) -> d
             if events["stop_recording"] or not operator.start(episode):
                 break
             policy.reset()
-            frames, steps, aborted = [], 0, False
             timer = StepTimer(config.fps)
             chunks = AsyncChunks(lambda batch: predict_chunk(policy, post, batch)) if config.async_inference else None
             start = time.perf_counter()
             try:
-                while time.perf_counter() - start < config.episode_time_s and not events["exit_early"]:
-                    t0 = time.perf_counter()
-                    frame = observation_frame(robot.get_observation(), motors)
-                    if video_camera is not None:
-                        frames.append(frame[video_camera])
-                    t_policy = time.perf_counter()
-                    batch = pre(frame_to_policy_batch({k: frame[k] for k in keys}))
-                    if chunks is not None:
-                        action = chunks.action(steps, batch)
-                    else:
-                        with torch.inference_mode():
-                            action = post(policy.select_action(batch))[0].cpu().numpy()
-                    policy_s = time.perf_counter() - t_policy
-                    robot.send_action(action_dict(action, motors))
-                    steps += 1
-                    timer.record(time.perf_counter() - t0, policy_s)
-                    precise_sleep(max(1.0 / config.fps - (time.perf_counter() - t0), 0.0))
+                frames, steps = _drive(
+                    robot, policy, pre, post, config, events, motors, keys, video_camera, timer, chunks
+                )
             finally:
                 if chunks is not None:
                     chunks.close()
@@ -227,6 +211,33 @@ def rollout(robot, config: RolloutConfig, operator: Operator | None = None) -> d
     result = summarize(records, config, policy.config, robot.config.type)
     (out / "results.json").write_text(json.dumps(result, indent=2) + "\n")
     return result
+
+
+def _drive(robot, policy, pre, post, config, events, motors, keys, video_camera, timer, chunks) -> tuple[list, int]:
+    """One episode's control loop at `config.fps` until its time is up or the operator ends it: (the frames of the
+    policy's first camera, the steps taken)."""
+    from lerobot.utils.robot_utils import precise_sleep
+
+    frames, steps = [], 0
+    start = time.perf_counter()
+    while time.perf_counter() - start < config.episode_time_s and not events["exit_early"]:
+        t0 = time.perf_counter()
+        frame = observation_frame(robot.get_observation(), motors)
+        if video_camera is not None:
+            frames.append(frame[video_camera])
+        t_policy = time.perf_counter()
+        batch = pre(frame_to_policy_batch({k: frame[k] for k in keys}))
+        if chunks is not None:
+            action = chunks.action(steps, batch)
+        else:
+            with torch.inference_mode():
+                action = post(policy.select_action(batch))[0].cpu().numpy()
+        policy_s = time.perf_counter() - t_policy
+        robot.send_action(action_dict(action, motors))
+        steps += 1
+        timer.record(time.perf_counter() - t0, policy_s)
+        precise_sleep(max(1.0 / config.fps - (time.perf_counter() - t0), 0.0))
+    return frames, steps
 
 
 def summarize(records: list[dict], config: RolloutConfig, policy_config, robot_type: str) -> dict:

@@ -177,34 +177,12 @@ def evaluate(
         raise ConfigError(f"--eval.batch_size must be >= 1; got {batch_size}")
     seeds = eval_seeds(episodes, split)
     slots = min(batch_size, len(seeds))
-    perturbed = parse_perturbation(perturbation)
-    if is_metaworld(spec):
-        _metaworld_options(spec, control_mode, sim_backend)
-        check_supported(perturbed, METAWORLD_KINDS, "Meta-World")
-        sim = "mujoco"
-    else:
-        check_supported(perturbed, MANISKILL_KINDS, "ManiSkill")
-        sim = available_sim_backend(choose_sim_backend(sim_backend, device, slots, perturbation))
+    sim = _simulation(spec, control_mode, sim_backend, device, slots, perturbation)
     policy, pre, post = load_policy(policy_path, device)
-    # the plugin's policies name the cameras they read (none for the blind and oracle controls, which then render
-    # nothing); a stock policy reads the task camera
-    cameras = list(policy.config.cameras) if hasattr(policy.config, "obs_space") else ["base_camera"]
-    resolution = getattr(policy.config, "camera_resolution", None)
-    size = image_size or (resolution[0] if resolution else 128)
-    check_compatible(policy.config, cameras, size, control_mode, task)  # before any simulator starts
-    plugin = hasattr(policy.config, "obs_space")
-    if plugin:
-        check_changes(perturbed, policy.config.obs_space, policy.config.point_features)
-    else:  # a stock policy sees colour
-        check_changes(perturbed, "rgb")
-    steps = episode_length or spec.max_steps
-    env_kwargs = dict(task=task, cameras=cameras, image_size=size, episode_length=steps, perturbation=perturbation)
-    if is_metaworld(spec):  # rendering only the sensors the policy reads
-        env_kwargs["sensors"] = (
-            rendered_sensors(policy.config.obs_space, policy.config.point_features) if plugin else (IMAGE_PREFIX,)
-        )
-    else:
-        env_kwargs.update(control_mode=control_mode, asset_dir=asset_dir, device=device)
+    env_kwargs = _env_kwargs(policy.config, spec, task, image_size, control_mode, episode_length, perturbation)
+    if not is_metaworld(spec):
+        env_kwargs.update(asset_dir=asset_dir, device=device)
+    steps = env_kwargs["episode_length"]
     start = time.time()
     label = f"eval {task}" + (f" [{perturbation}]" if perturbation not in (None, "none") else "")
     bar = tqdm(total=len(seeds), desc=label, unit="ep", disable=not progress)
@@ -227,7 +205,6 @@ def evaluate(
         bar.close()
         envs.close()
     ordered = [records[seed] for seed in seeds]
-    sub = {name: round(sum(r[name] for r in ordered) / len(ordered), 4) for name in spec.sub_success}
     return {
         "task": task,
         "policy_path": str(policy_path),
@@ -235,17 +212,54 @@ def evaluate(
         "policy_type": policy.config.type,
         **success_summary([r["success"] for r in ordered]),
         "seeds": seeds,
-        "sub_success": sub,
+        "sub_success": {name: round(sum(r[name] for r in ordered) / len(ordered), 4) for name in spec.sub_success},
         "episode_length_mean": round(float(np.mean([r["length"] for r in ordered])), 2),
         "per_episode": ordered,  # each wave's frames went to its videos
         "per_seed": per_seed(seeds, [r["success"] for r in ordered], [r["length"] for r in ordered]),
-        "image_size": size,
+        "image_size": env_kwargs["image_size"],
         "control_mode": control_mode,
         "perturbation": perturbation or "none",
         "batch_size": slots,
         "sim_backend": sim,
         "wall_s": round(time.time() - start, 1),
     }
+
+
+def _simulation(spec, control_mode: str, sim_backend: str, device: str, slots: int, perturbation: str | None) -> str:
+    """The simulation an evaluation of `slots` episodes at a time runs on, its settings and perturbation refused
+    where the task's family takes none such (before the policy loads)."""
+    perturbed = parse_perturbation(perturbation)
+    if is_metaworld(spec):
+        _metaworld_options(spec, control_mode, sim_backend)
+        check_supported(perturbed, METAWORLD_KINDS, "Meta-World")
+        return "mujoco"
+    check_supported(perturbed, MANISKILL_KINDS, "ManiSkill")
+    return available_sim_backend(choose_sim_backend(sim_backend, device, slots, perturbation))
+
+
+def _env_kwargs(
+    config, spec, task: str, image_size: int | None, control_mode: str, episode_length: int | None, perturbation
+) -> dict:
+    """The env of an evaluation of a policy with `config`: its cameras (the plugin's policies name those they read,
+    none for the controls; a stock policy reads the task camera), its training size, and on Meta-World only the
+    sensors it reads; the policy and the perturbation checked against it before any simulator starts."""
+    plugin = hasattr(config, "obs_space")
+    cameras = list(config.cameras) if plugin else ["base_camera"]
+    resolution = getattr(config, "camera_resolution", None)
+    size = image_size or (resolution[0] if resolution else 128)
+    check_compatible(config, cameras, size, control_mode, task)
+    perturbed = parse_perturbation(perturbation)
+    if plugin:
+        check_changes(perturbed, config.obs_space, config.point_features)
+    else:  # a stock policy sees colour
+        check_changes(perturbed, "rgb")
+    steps = episode_length or spec.max_steps
+    kwargs = dict(task=task, cameras=cameras, image_size=size, episode_length=steps, perturbation=perturbation)
+    if is_metaworld(spec):  # rendering only the sensors the policy reads
+        kwargs["sensors"] = rendered_sensors(config.obs_space, config.point_features) if plugin else (IMAGE_PREFIX,)
+    else:
+        kwargs["control_mode"] = control_mode
+    return kwargs
 
 
 def _run_wave(envs, wave, policy, pre, post, steps, video_dir, device):

@@ -60,35 +60,7 @@ def model_card(
         tags=sorted({"robotics", "lerobot", "obsbench", config.type, base, config.obs_space}),
         datasets=[dataset] if dataset and "/" in dataset and not dataset.startswith(("local/", "/", ".")) else None,
     )
-    rows = [
-        _row("observation space", f"`{config.obs_space}`"),
-        _row("encoder", f"`{config.encoder}`"),
-        _row("policy", f"`{config.type}`" + (f" (`{base}`)" if base != config.type else "")),
-        _row("cameras", ", ".join(getattr(config, "cameras", []) or []) or "none (blind control)"),
-        _row("camera resolution", "x".join(str(v) for v in getattr(config, "camera_resolution", []) or []) or "-"),
-        _row("task", task or "unknown"),
-        _row("dataset", dataset or "unknown"),
-    ]
-    if training:
-        budget = f"{training['steps']} steps x batch {training['batch_size']}"
-        if training.get("samples"):
-            budget += f" = {training['samples']} samples"
-        if training.get("demos"):
-            budget += f" on {training['demos']} demonstrations"
-        rows.append(_row("training budget", budget))
-    evaluations = evaluations or []
-    if evaluations:
-        rows += _evaluation_rows(evaluations[0])
-        perturbed = [e for e in evaluations[1:] if e.get("perturbation", "none") != "none"]
-        if perturbed:
-            rows.append(
-                _row(
-                    "perturbations (evaluation only)",
-                    "; ".join(f"{e['perturbation']}: {e['successes']}/{e['episodes']}" for e in perturbed),
-                )
-            )
-    else:
-        rows.append(_row("evaluation", "not recorded with this checkpoint"))
+    rows = _card_rows(config, base, dataset, task, training, evaluations or [])
     rows.append(_row("lerobot-obsbench", version(DISTRIBUTION)))
     name = repo_id or "ORG/NAME"
     env = f"--env.type=obsbench --env.task={task}" if task else "--env.type=obsbench --env.task=TASK"
@@ -123,6 +95,34 @@ def model_card(
         ]
     )
     return ModelCard(body)
+
+
+def _card_rows(config, base: str, dataset, task, training: dict | None, evaluations: list[dict]) -> list[str]:
+    """The card's table: what the policy sees and is, its data, its training budget and its evaluations."""
+    rows = [
+        _row("observation space", f"`{config.obs_space}`"),
+        _row("encoder", f"`{config.encoder}`"),
+        _row("policy", f"`{config.type}`" + (f" (`{base}`)" if base != config.type else "")),
+        _row("cameras", ", ".join(getattr(config, "cameras", []) or []) or "none (blind control)"),
+        _row("camera resolution", "x".join(str(v) for v in getattr(config, "camera_resolution", []) or []) or "-"),
+        _row("task", task or "unknown"),
+        _row("dataset", dataset or "unknown"),
+    ]
+    if training:
+        budget = f"{training['steps']} steps x batch {training['batch_size']}"
+        if training.get("samples"):
+            budget += f" = {training['samples']} samples"
+        if training.get("demos"):
+            budget += f" on {training['demos']} demonstrations"
+        rows.append(_row("training budget", budget))
+    if not evaluations:
+        return [*rows, _row("evaluation", "not recorded with this checkpoint")]
+    rows += _evaluation_rows(evaluations[0])
+    perturbed = [e for e in evaluations[1:] if e.get("perturbation", "none") != "none"]
+    if perturbed:
+        shown = "; ".join(f"{e['perturbation']}: {e['successes']}/{e['episodes']}" for e in perturbed)
+        rows.append(_row("perturbations (evaluation only)", shown))
+    return rows
 
 
 class ModelCardMixin:

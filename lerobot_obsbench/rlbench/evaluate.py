@@ -182,32 +182,7 @@ def evaluate_rlbench(
             camera = task_env._scene._cam_front  # RLBench exposes the scene's cameras only privately
             camera.set_matrix(camera_view.apply(camera.get_matrix()))
         for episode in range(episodes):
-            task_env.set_variation(-1)
-            (demo,) = task_env.get_demos(1, live_demos=False, random_selection=False, from_episode_number=episode)
-            task_env.set_variation(demo.variation_number)
-            descriptions, obs = task_env.reset_to_demo(demo)
-            policy.reset(descriptions[0])
-            success, steps, failure = False, 0, None
-            while steps < max_steps and not success:
-                candidates = policy.act(obs)
-                tries = candidates[:step0_retries] if steps == 0 else candidates[:1]
-                for action in tries:
-                    try:
-                        obs, reward, terminate = task_env.step(action)
-                        failure = None
-                        break
-                    except planning_errors as error:
-                        failure = f"{type(error).__name__} at step {steps}: {error}"
-                if failure is not None:
-                    break
-                steps += 1
-                success = reward == 1
-                if terminate:
-                    break
-            records.append(
-                {"episode": episode, "variation": int(demo.variation_number), "success": success, "steps": steps}
-                | ({"failure": failure} if failure else {})
-            )
+            records.append(_run_episode(task_env, policy, episode, max_steps, step0_retries, planning_errors))
             if progress_file is not None:
                 wins = sum(r["success"] for r in records)
                 write_json_atomic(progress_file, {"done": len(records), "episodes": episodes, "successes": wins})
@@ -227,6 +202,36 @@ def evaluate_rlbench(
         ),
         "wall_s": round(time.time() - start, 1),
     }
+
+
+def _run_episode(task_env, policy, episode: int, max_steps: int, step0_retries: int, planning_errors) -> dict:
+    """The test split's `episode`: its recorded scene restored, the policy stepped until success, `max_steps`, the
+    task's own end or a motion the planner cannot make (at the first step the policy's next candidates are tried,
+    up to `step0_retries`)."""
+    task_env.set_variation(-1)
+    (demo,) = task_env.get_demos(1, live_demos=False, random_selection=False, from_episode_number=episode)
+    task_env.set_variation(demo.variation_number)
+    descriptions, obs = task_env.reset_to_demo(demo)
+    policy.reset(descriptions[0])
+    success, steps, failure = False, 0, None
+    while steps < max_steps and not success:
+        candidates = policy.act(obs)
+        tries = candidates[:step0_retries] if steps == 0 else candidates[:1]
+        for action in tries:
+            try:
+                obs, reward, terminate = task_env.step(action)
+                failure = None
+                break
+            except planning_errors as error:
+                failure = f"{type(error).__name__} at step {steps}: {error}"
+        if failure is not None:
+            break
+        steps += 1
+        success = reward == 1
+        if terminate:
+            break
+    record = {"episode": episode, "variation": int(demo.variation_number), "success": success, "steps": steps}
+    return record | ({"failure": failure} if failure else {})
 
 
 # The paper's camera-view changes, spelled camera_pitch / camera_yaw as the ManiSkill half spells them

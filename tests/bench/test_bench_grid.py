@@ -26,6 +26,27 @@ from tests.support.paths import REPO_ROOT
 BASE = {"tasks": ["PushCube-v1"], "obs_spaces": ["rgb", "pointcloud"], "steps": 10, "preset": "tiny"}
 
 
+def test_every_preset_grid_says_what_it_is_in_a_header_of_eight_lines_or_fewer():
+    """A grid file's header is its one-paragraph why; the details live in docs/ (a longer header is prose that
+    belongs on a page)."""
+    from lerobot_obsbench.bench.package_data import GRIDS, path_or_shipped
+
+    for name in preset_grids():
+        path = path_or_shipped(name, GRIDS, ".yaml")
+        lines = path.read_text().splitlines()
+        header = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+        assert 1 <= header <= 8, f"{path.name}: a header of {header} lines"
+
+
+def test_the_robustness_grids_keep_the_run_ids_of_the_runs_they_evaluate_again():
+    """cpu-robustness-* train the published suites' runs (the same training fields): their unperturbed evaluations
+    are those suites' runs again, which a re-run under the pinned kernels gives identical."""
+    metaworld = {r.run_id for r in load_grid("cpu-metaworld").expand()}
+    assert {r.run_id for r in load_grid("cpu-robustness-metaworld").expand()} <= metaworld
+    maniskill = {r.run_id for g in ("quick", "cpu-ranking") for r in load_grid(g).expand()}
+    assert {r.run_id for r in load_grid("cpu-robustness-maniskill").expand()} <= maniskill
+
+
 def test_presets_expand_and_validate():
     assert {"quick", "paper-main", "paper-sample-efficiency", "paper-generalization", "paper-design"} <= set(
         preset_grids()

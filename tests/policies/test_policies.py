@@ -214,3 +214,26 @@ def test_a_compiled_encoder_trains_the_same_model_and_acts_eagerly(tiny_dataset,
     assert compiled.model.observation._compiled is not None and not compiled.model.observation.training
     compiled.save_pretrained(tmp_path)
     assert set(load_file(tmp_path / "model.safetensors")) == set(eager.state_dict())
+
+
+def test_the_named_types_table_is_the_classes():
+    """configuration_named's docstring table names each written class's type, policy, space and default encoder, and
+    each type presets the encoder its space defaults to (but the SpUNet types)."""
+    import importlib
+    import re
+
+    from lerobot_obsbench.encoders import default_encoder
+    from lerobot_obsbench.policies.named import configuration_named, modeling_named, processor_named
+
+    table = {}
+    for row in re.findall(r"^\| (\w+), (\w+) \| ACT, DP \| (\w+) \| (\w+)", configuration_named.__doc__, re.M):
+        act, dp, space, encoder = row
+        table[act], table[dp] = ("obs_act", space, encoder), ("obs_diffusion", space, encoder)
+    assert table == configuration_named.NAMED_POLICIES and len(table) == 12
+    for name, (base, space, encoder) in table.items():
+        assert encoder == default_encoder(space) or name.endswith("_spunet")
+        policy = getattr(modeling_named, "".join(p.capitalize() for p in name.split("_")) + "Policy")
+        assert policy.name == name and policy.config_class is configuration_named.NAMED_CONFIGS[name]
+        base_processors = importlib.import_module(f"lerobot_obsbench.policies.{base}.processor_{base}")
+        made = getattr(processor_named, f"make_{name}_pre_post_processors")
+        assert made is getattr(base_processors, f"make_{base}_pre_post_processors")

@@ -2,19 +2,79 @@
 
 from __future__ import annotations
 
-from lerobot_obsbench.policies.named.configuration_named import NAMED_CONFIGS, NAMED_POLICIES
+from lerobot_obsbench.policies.named.configuration_named import (
+    ActDepthConfig,
+    ActPcdConfig,
+    ActPcdSpunetConfig,
+    ActPointmapConfig,
+    ActRgbConfig,
+    ActRgbdConfig,
+    DpDepthConfig,
+    DpPcdConfig,
+    DpPcdSpunetConfig,
+    DpPointmapConfig,
+    DpRgbConfig,
+    DpRgbdConfig,
+)
 from lerobot_obsbench.policies.obs_act.modeling_obs_act import ObsACTPolicy
 from lerobot_obsbench.policies.obs_diffusion.modeling_obs_diffusion import ObsDiffusionPolicy
 
-BASE_POLICIES = {"obs_act": ObsACTPolicy, "obs_diffusion": ObsDiffusionPolicy}
+
+class ActRgbPolicy(ObsACTPolicy):
+    config_class = ActRgbConfig
+    name = "act_rgb"
 
 
-def _make(type_name: str) -> type:
-    config_class = NAMED_CONFIGS[type_name]
-    base = BASE_POLICIES[NAMED_POLICIES[type_name][0]]
-    name = config_class.__name__.removesuffix("Config") + "Policy"
-    return type(name, (base,), {"config_class": config_class, "name": type_name, "__module__": __name__})
+class ActDepthPolicy(ObsACTPolicy):
+    config_class = ActDepthConfig
+    name = "act_depth"
 
 
-NAMED_POLICY_CLASSES = {name: _make(name) for name in NAMED_POLICIES}
-globals().update({cls.__name__: cls for cls in NAMED_POLICY_CLASSES.values()})
+class ActRgbdPolicy(ObsACTPolicy):
+    config_class = ActRgbdConfig
+    name = "act_rgbd"
+
+
+class ActPointmapPolicy(ObsACTPolicy):
+    config_class = ActPointmapConfig
+    name = "act_pointmap"
+
+
+class ActPcdPolicy(ObsACTPolicy):
+    config_class = ActPcdConfig
+    name = "act_pcd"
+
+
+class ActPcdSpunetPolicy(ObsACTPolicy):
+    config_class = ActPcdSpunetConfig
+    name = "act_pcd_spunet"
+
+
+class DpRgbPolicy(ObsDiffusionPolicy):
+    config_class = DpRgbConfig
+    name = "dp_rgb"
+
+
+class DpDepthPolicy(ObsDiffusionPolicy):
+    config_class = DpDepthConfig
+    name = "dp_depth"
+
+
+class DpRgbdPolicy(ObsDiffusionPolicy):
+    config_class = DpRgbdConfig
+    name = "dp_rgbd"
+
+
+class DpPointmapPolicy(ObsDiffusionPolicy):
+    config_class = DpPointmapConfig
+    name = "dp_pointmap"
+
+
+class DpPcdPolicy(ObsDiffusionPolicy):
+    config_class = DpPcdConfig
+    name = "dp_pcd"
+
+
+class DpPcdSpunetPolicy(ObsDiffusionPolicy):
+    config_class = DpPcdSpunetConfig
+    name = "dp_pcd_spunet"
