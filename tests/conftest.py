@@ -10,6 +10,8 @@ import pytest
 import lerobot_obsbench  # noqa: F401  (registers obs_act / obs_diffusion, as LeRobot's plugin discovery does)
 from scripts import make_synthetic_dataset as synthetic
 
+pytest_plugins = ["tests.support.fault_logs"]  # a crashed worker's own stack, printed in the summary
+
 
 @pytest.fixture(scope="session")
 def synthetic_module():
