@@ -38,13 +38,19 @@ def test_every_preset_grid_says_what_it_is_in_a_header_of_eight_lines_or_fewer()
         assert 1 <= header <= 8, f"{path.name}: a header of {header} lines"
 
 
-def test_the_robustness_grids_keep_the_run_ids_of_the_runs_they_evaluate_again():
+def test_the_q3_and_q4_grids_keep_the_run_ids_of_the_published_runs_they_contain():
     """cpu-robustness-* train the published suites' runs (the same training fields): their unperturbed evaluations
     are those suites' runs again, which a re-run under the pinned kernels gives identical."""
     metaworld = {r.run_id for r in load_grid("cpu-metaworld").expand()}
     assert {r.run_id for r in load_grid("cpu-robustness-metaworld").expand()} <= metaworld
     maniskill = {r.run_id for g in ("quick", "cpu-ranking") for r in load_grid(g).expand()}
     assert {r.run_id for r in load_grid("cpu-robustness-maniskill").expand()} <= maniskill
+    # the sample-efficiency grids' largest demonstration counts are the published suites' runs too
+    most = [r for r in load_grid("cpu-sample-efficiency-metaworld").expand() if r.demos == 50]
+    assert len(most) == 45 and {r.run_id for r in most} <= metaworld
+    pushes = [r for r in load_grid("cpu-sample-efficiency-maniskill").expand() if r.demos == 200]
+    quick = {r.run_id for r in load_grid("quick").expand()}
+    assert {r.run_id for r in pushes if r.task == "PushCubeWide-v1"} == quick
 
 
 def test_presets_expand_and_validate():
