@@ -20,15 +20,17 @@ _open_files = []  # a worker's log stays open for the faulthandler as long as th
 
 @pytest.hookimpl(trylast=True)  # after pytest's own faulthandler plugin, which points it at stderr
 def pytest_configure(config):
-    worker = os.environ.get("PYTEST_XDIST_WORKER")
-    if worker is None:  # the controller (or a run without workers): one folder for this run's logs
+    # A worker is known by its own config, not by the environment: a test that starts pytest inside a worker
+    # inherits that worker's variables, and its run must still collect its own workers' logs.
+    worker_input = getattr(config, "workerinput", None)
+    if worker_input is None:  # the controller (or a run without workers): one folder for this run's logs
         folder = tempfile.mkdtemp(prefix="pytest-faults-")
         os.environ[FAULT_DIR_ENV] = folder
         config._fault_folder = Path(folder)
         return
     folder = os.environ.get(FAULT_DIR_ENV)
     if folder:
-        log = open(Path(folder) / f"{worker}.log", "w")  # kept open for the process's life
+        log = open(Path(folder) / f"{worker_input['workerid']}.log", "w")  # kept open for the process's life
         _open_files.append(log)
         faulthandler.enable(file=log, all_threads=True)
 
