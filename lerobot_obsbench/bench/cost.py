@@ -135,6 +135,22 @@ def demo_seconds(grid: Grid, run: RunSpec, episodes: int, device: str) -> float:
     )
 
 
+def unmeasured(runs: list[RunSpec]) -> dict[str, list[str]]:
+    """Task -> the rates a CPU plan of `runs` prices it without, at their defaults: a ManiSkill task with no
+    measured evaluation factor (counts as 1), a task whose scripted expert's episode length is not measured (counts
+    as 0.6 of the budget). RLBench tasks are priced by a guess for every task (the rates' own line says so)."""
+    missing: dict[str, list[str]] = {}
+    for task in dict.fromkeys(r.task for r in runs if r.rlbench_task is None):
+        names = []
+        if not is_metaworld_name(task) and task not in EVAL_TASK_FACTOR["cpu"]:
+            names.append("evaluation factor")
+        if task not in EXPERT_MEAN_STEPS:
+            names.append("expert's episode length")
+        if names:
+            missing[task] = names
+    return missing
+
+
 def planned_steps(run: RunSpec, out: Path) -> tuple[int, bool]:
     """(optimizer steps, exact): frame_epochs budgets are estimated until the demonstrations exist."""
     if run.budget_unit != "frame_epochs":

@@ -26,6 +26,7 @@ from lerobot_obsbench.bench.cost import (
     eval_seconds,
     planned_steps,
     train_seconds,
+    unmeasured,
 )
 from lerobot_obsbench.bench.engines import make_engine
 from lerobot_obsbench.bench.grid import Grid
@@ -202,6 +203,13 @@ def print_plan(grid: Grid, work: Work, out: Path, device: str, echo=print, worke
     )
     for line in cost.lines(device, workers):
         echo(line)
+    defaults = unmeasured(work.runs)
+    if defaults:
+        echo(
+            "  priced at the defaults, not measured: "
+            + "; ".join(f"{task} ({', '.join(names)})" for task, names in defaults.items())
+            + " (`python -m benchmarks.bench_grid_cost` and `python -m benchmarks.bench_experts` measure them)"
+        )
     if len(set(grid.seeds)) < 2:
         echo(
             f"  note: one training seed ({grid.seeds[0]}): every comparison rests on it, so its intervals cover "
