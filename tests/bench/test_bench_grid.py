@@ -739,6 +739,19 @@ def test_a_task_added_to_a_suite_in_its_grid_file_alone_follows_the_suites_rules
     assert _hours("with 2 local workers: ~HOURS h of wall time", text) > 0
 
 
+PUBLISHED = sorted(p.parent.name for p in (REPO_ROOT / "docs" / "results").glob("*/results.jsonl"))
+
+
+@pytest.mark.parametrize("suite", [name for name in PUBLISHED if name in preset_grids()])
+def test_a_published_suites_grid_still_names_the_runs_it_published(suite):
+    """A change that moved a run id would orphan a published suite's results and retrain what its page describes:
+    each published grid expands to exactly the runs its results.jsonl holds (cpu-suite's include the main job's, the
+    quick grid's, which the test below pins to them)."""
+    path = REPO_ROOT / "docs" / "results" / suite / "results.jsonl"
+    trained = {json.loads(line)["run_id"] for line in path.read_text().splitlines() if '"kind": "train"' in line}
+    assert {r.run_id for r in load_grid(suite).expand()} == trained
+
+
 def test_cpu_suite_reuses_the_quick_grids_runs_and_fits_three_hours(capsys):
     """cpu-suite's PushCubeWide-v1 is the quick grid's setting, run for run (a copy of its outputs is reused), and
     the suite fits the three hours its page promises (the CPU suites' other rules: the test above)."""
