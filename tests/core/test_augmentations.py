@@ -166,6 +166,35 @@ def test_the_adapter_augments_in_training_only_and_the_same_seed_gives_the_same_
         assert torch.equal(evaluated, reference)
 
 
+@pytest.mark.parametrize("name", aug.available_augmentations())
+def test_every_registered_augmentation_reaches_what_the_adapter_gives_in_training(synthetic_module, name):
+    """docs/architecture.md's extension row "an augmentation of a new kind": whatever its kind, a registered
+    transform changes the adapter's training output (a kind the adapter does not apply would train silently
+    unaugmented), differs between two seeds, and leaves evaluation alone (random_crop's centre crop aside)."""
+    info = aug.augmentation_info(name)
+    space = next(s for s in ("rgb", "depth", "rgbd", "pointcloud") if info.applies_to(s))
+    batch = frame_batch(synthetic_module, batch_size=2, size=64)  # ~40 points in the box: dropout drops some
+    workspace = (-0.5, 0.5, -0.5, 0.5, 0.005, 0.5)
+    plain = ObservationAdapter(AdapterConfig(space, [CAM], workspace=workspace)).eval()
+    adapter = ObservationAdapter(AdapterConfig(space, [CAM], workspace=workspace, augment=name))
+
+    def flat(out):
+        return out if isinstance(out, torch.Tensor) else torch.cat([out.xyz, out.features, out.mask[..., None]], -1)
+
+    def trained(seed: int):
+        torch.manual_seed(seed)
+        return flat(adapter.train()(batch))
+
+    torch.manual_seed(0)
+    reference = flat(plain(batch))
+    first = trained(0)
+    assert not torch.equal(first, reference), f"{name} ({info.kind}) changed nothing the adapter gives"
+    assert not torch.equal(first, trained(1))
+    if name != "random_crop":
+        torch.manual_seed(0)
+        assert torch.equal(flat(adapter.eval()(batch)), reference)
+
+
 def _inside(points: torch.Tensor, box) -> torch.Tensor:
     b = torch.tensor(box).reshape(3, 2)
     return ((points >= b[:, 0]) & (points <= b[:, 1])).all(-1)
