@@ -319,6 +319,25 @@ def test_robustness_is_the_share_of_unperturbed_success_kept_with_intervals_over
     assert found["T1"]["obs_act/depth/e"] is None and "obs_act/none/e" not in found["T1"]
 
 
+def test_a_perturbation_on_the_first_test_seeds_is_compared_with_the_nominal_outcome_on_those_seeds():
+    """`perturbed_episodes`: the camera moved on the first 10 of 25 test seeds. The share kept compares those 10
+    episodes with the same 10 unperturbed (5 of them succeed where 20 of 25 do), and the seed-by-seed agreement
+    counts the nominal successes of those 10 alone."""
+    nominal = "1" * 5 + "." * 5 + "1" * 15
+    records = []
+    for seed in range(3):
+        r = record(f"p{seed}", "T", "pointcloud", 20, episodes=25, seed=seed)
+        r["evaluations"]["none"]["per_seed"] = _per_seed(nominal, [9] * 25)
+        moved = "1" * 5 + "." * 5  # the same five succeed
+        r["evaluations"]["camera_yaw:10"] = {"successes": 5, "episodes": 10, "per_seed": _per_seed(moved, [9] * 10)}
+        records.append(r)
+    report = build_report(stored(*records))
+    kept = report["checks"]["robustness"]["camera_yaw:10"]["T"]["obs_act/pointcloud/e"]
+    assert kept[0] == pytest.approx(1.0)  # not (5/10) / (20/25) = 0.625
+    agreement = report["checks"]["agreement"]["T | obs_act/pointcloud/e | camera_yaw:10"]
+    assert (agreement["nominal_success"], agreement["episodes"], agreement["same_outcome"]) == (15, 30, 30)
+
+
 def test_report_cli_with_published_table_only(tmp_path, capsys):
     table = tmp_path / "t.csv"
     table.write_text("task,A,B\nt1,0.5,0.7\nt2,0.3,0.1\n")

@@ -117,7 +117,7 @@ def agreements(records: list[dict]) -> dict[tuple[str, str, str], Agreement]:
             pairs = list(zip(first["success"], changed["success"], first["length"], changed["length"], strict=True))
             key = (r["task"], labels[r["run_id"]], name)
             changed_runs[key].append((changed["success"].count("1"), len(pairs)))
-            nominal_runs[key].append((nominal["success"].count("1"), len(pairs)))
+            nominal_runs[key].append((first["success"].count("1"), len(pairs)))
             same[key] += sum(a == b for a, b, _, _ in pairs)
             identical[key] += sum(a == b and la == lb for a, b, la, lb in pairs)
     return {

@@ -158,8 +158,8 @@ def perturbations(records: list[dict]) -> list[str]:
 
 
 def paired_with_nominal(records: list[dict], perturbation: str) -> dict[str, dict[str, list[tuple[int, ...]]]]:
-    """{task: {label: [(successes, episodes) under `perturbation` and unperturbed, of each training seed evaluated
-    under both]}} at each task's largest demo count."""
+    """{task: {label: [(successes, episodes) under `perturbation` and unperturbed on the same test seeds
+    (`nominal_on_seeds_of`), of each training seed evaluated under both]}} at each task's largest demo count."""
     labels = method_labels(records)
     most = most_demos(records)
     pairs: dict[str, dict[str, list[tuple[int, ...]]]] = defaultdict(lambda: defaultdict(list))
@@ -168,9 +168,19 @@ def paired_with_nominal(records: list[dict], perturbation: str) -> dict[str, dic
         if r["config"]["demos"] != most[r["task"]] or perturbed is None or nominal is None:
             continue
         pairs[r["task"]][labels[r["run_id"]]].append(
-            (perturbed["successes"], perturbed["episodes"], nominal["successes"], nominal["episodes"])
+            (perturbed["successes"], perturbed["episodes"], *nominal_on_seeds_of(nominal, perturbed))
         )
     return {task: dict(row) for task, row in pairs.items()}
+
+
+def nominal_on_seeds_of(nominal: dict, perturbed: dict) -> tuple[int, int]:
+    """(successes, episodes) of the `nominal` evaluation on the test seeds `perturbed` ran — the first of them
+    (`perturbed_episodes`) — so a share kept compares the same episodes; the whole nominal evaluation where either
+    lacks per-seed outcomes or their seeds differ."""
+    mine, theirs = perturbed.get("per_seed"), nominal.get("per_seed")
+    if mine is None or theirs is None or theirs["seeds"][: len(mine["seeds"])] != mine["seeds"]:
+        return nominal["successes"], nominal["episodes"]
+    return theirs["success"][: len(mine["seeds"])].count("1"), len(mine["seeds"])
 
 
 def demo_counts(records: list[dict]) -> list[int]:
