@@ -29,6 +29,7 @@ before anything slow starts.
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -266,7 +267,8 @@ def orbit_eye(eye, target, yaw_deg: float = 0.0, pitch_deg: float = 0.0) -> np.n
 
 def capture_look_at(ms_env) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """(eye, target) of each default camera of a ManiSkill env, read by re-evaluating its camera configs with
-    `sapien_utils.look_at` instrumented (the configs keep only the resulting pose)."""
+    `sapien_utils.look_at` instrumented (the configs keep only the resulting pose) — in `sapien_utils` and wherever
+    the env's classes imported it by name (`from mani_skill.utils.sapien_utils import look_at`, as PullCube does)."""
     from mani_skill.utils import sapien_utils
 
     calls = []
@@ -276,11 +278,18 @@ def capture_look_at(ms_env) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         calls.append((np.asarray(eye, dtype=np.float64), np.asarray(target, dtype=np.float64)))
         return original(eye, target, up)
 
-    sapien_utils.look_at = recording
+    modules = {sapien_utils} | {
+        module
+        for module in (sys.modules.get(cls.__module__) for cls in type(ms_env).__mro__)
+        if getattr(module, "look_at", None) is original
+    }
+    for module in modules:
+        module.look_at = recording
     try:
         configs = ms_env._default_sensor_configs
     finally:
-        sapien_utils.look_at = original
+        for module in modules:
+            module.look_at = original
     configs = configs if isinstance(configs, (list, tuple)) else [configs]
     if len(calls) != len(configs):
         raise PerturbationError(f"cannot find the look-at points of {type(ms_env).__name__}'s cameras")
