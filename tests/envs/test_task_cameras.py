@@ -10,8 +10,9 @@ import pytest
 
 from lerobot_obsbench.bench.diagnostics import object_positions, pixel_diameters
 from lerobot_obsbench.bench.grid import load_grid
-from lerobot_obsbench.envs.base_task import eval_seeds, task_spec
+from lerobot_obsbench.envs.base_task import TASKS, eval_seeds, missing_assets, task_spec
 from lerobot_obsbench.envs.maniskill import ObsBenchEnv
+from lerobot_obsbench.envs.perturbations import capture_look_at
 
 pytestmark = pytest.mark.slow
 
@@ -121,3 +122,28 @@ def test_a_camera_move_moves_the_scene_camera_and_leaves_the_wrist_camera_on_the
     finally:
         still.close()
         moved.close()
+
+
+# a task whose ManiSkill assets are downloaded at first use (TurnFaucet's) cannot be built on an offline machine
+BUILDABLE = sorted(task for task in TASKS if not missing_assets(task_spec(task)))
+
+
+@pytest.mark.parametrize("task", BUILDABLE)
+def test_every_tasks_scene_cameras_have_the_look_at_point_a_camera_move_orbits_about(task):
+    """A camera move orbits each scene camera about the point its ManiSkill config looks at, read by instrumenting
+    `look_at` (`capture_look_at`): found for every default camera of every task, whichever way its env imported
+    `look_at` (PullCube by name), and the built camera's optical axis points from that eye to that target."""
+    env = ObsBenchEnv(task, image_size=SIZE)
+    try:
+        ms_env = env.unwrapped_ms
+        looks = capture_look_at(ms_env)
+        configs = ms_env._default_sensor_configs
+        assert set(looks) == {c.uid for c in (configs if isinstance(configs, (list, tuple)) else [configs])}
+        for config in configs if isinstance(configs, (list, tuple)) else [configs]:
+            eye, target = looks[config.uid]
+            matrix = np.asarray(config.pose.to_transformation_matrix(), dtype=np.float64).reshape(-1, 4, 4)[0]
+            np.testing.assert_allclose(matrix[:3, 3], eye, atol=1e-5)
+            # SAPIEN's camera looks along its x axis
+            np.testing.assert_allclose(matrix[:3, 0], (target - eye) / np.linalg.norm(target - eye), atol=1e-4)
+    finally:
+        env.close()
