@@ -10,7 +10,13 @@ from dataclasses import dataclass
 from functools import cached_property
 
 from lerobot_obsbench.bench import aggregates
-from lerobot_obsbench.bench.report.runs import label_configs, method_labels, most_demos, paired_with_nominal
+from lerobot_obsbench.bench.report.runs import (
+    label_configs,
+    method_labels,
+    most_demos,
+    nominal_prefix,
+    paired_with_nominal,
+)
 from lerobot_obsbench.bench.report.statistics import Cell, ReportError
 from lerobot_obsbench.schema import available_spaces, space_info
 from lerobot_obsbench.stats import mean_over_tasks_interval, relative_success
@@ -110,10 +116,9 @@ def agreements(records: list[dict]) -> dict[tuple[str, str, str], Agreement]:
         for name, evaluation in r["evaluations"].items():
             changed = evaluation.get("per_seed")
             # a perturbed evaluation runs the nominal's test seeds or the first of them (`perturbed_episodes`)
-            n = len(changed["seeds"]) if changed is not None else 0
-            if name == "none" or changed is None or changed["seeds"] != nominal["seeds"][:n]:
+            first = nominal_prefix(nominal, changed)
+            if name == "none" or first is None:
                 continue
-            first = {k: nominal[k][:n] for k in ("success", "length")}
             pairs = list(zip(first["success"], changed["success"], first["length"], changed["length"], strict=True))
             key = (r["task"], labels[r["run_id"]], name)
             changed_runs[key].append((changed["success"].count("1"), len(pairs)))

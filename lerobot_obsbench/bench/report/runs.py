@@ -174,13 +174,23 @@ def paired_with_nominal(records: list[dict], perturbation: str) -> dict[str, dic
 
 
 def nominal_on_seeds_of(nominal: dict, perturbed: dict) -> tuple[int, int]:
-    """(successes, episodes) of the `nominal` evaluation on the test seeds `perturbed` ran — the first of them
-    (`perturbed_episodes`) — so a share kept compares the same episodes; the whole nominal evaluation where either
-    lacks per-seed outcomes or their seeds differ."""
-    mine, theirs = perturbed.get("per_seed"), nominal.get("per_seed")
-    if mine is None or theirs is None or theirs["seeds"][: len(mine["seeds"])] != mine["seeds"]:
+    """(successes, episodes) of the `nominal` evaluation on the test seeds `perturbed` ran (`nominal_prefix`), so a
+    share kept compares the same episodes; the whole nominal evaluation where that cannot be told."""
+    first = nominal_prefix(nominal.get("per_seed"), perturbed.get("per_seed"))
+    if first is None:
         return nominal["successes"], nominal["episodes"]
-    return theirs["success"][: len(mine["seeds"])].count("1"), len(mine["seeds"])
+    return first["success"].count("1"), len(first["seeds"])
+
+
+def nominal_prefix(nominal: dict | None, changed: dict | None) -> dict | None:
+    """The per-seed outcomes (`per_seed`) of a nominal evaluation on the seeds a changed one ran — the first of them
+    (`perturbed_episodes`) — or None where either lacks per-seed outcomes or the seeds are not its first ones."""
+    if nominal is None or changed is None:
+        return None
+    n = len(changed["seeds"])
+    if nominal["seeds"][:n] != changed["seeds"]:
+        return None
+    return {k: nominal[k][:n] for k in ("seeds", "success", "length")}
 
 
 def demo_counts(records: list[dict]) -> list[int]:
